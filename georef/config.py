@@ -1,0 +1,125 @@
+"""Processing configuration: defaults, ``flight.toml`` and command-line overrides.
+
+Units: metres for lever arms and GNSS sigmas, degrees for the boresight, hours for the UTC offset.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+from georef.io.errors import InputError
+
+METHODS = ("axis",)
+
+
+@dataclass(frozen=True)
+class ProcessingConfig:
+    """Everything ``georef process`` needs besides the input files."""
+
+    method: str = "axis"
+    #: body-frame lever arm IMU -> GNSS antenna [m], x forward, y right, z down
+    lever_arm_gnss: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: body-frame lever arm IMU -> camera perspective centre [m]
+    lever_arm_camera: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: boresight (roll, pitch, yaw) of the camera in the body frame [deg]
+    boresight: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: GNSS fix standard deviation north, east, up [m]
+    gnss_sigma: tuple[float, float, float] = (1.0, 1.0, 2.0)
+    #: GNSS fix rate [Hz] when known (enables keeping equal consecutive fixes); None = unknown
+    gnss_rate_hz: float | None = 1.0
+    #: UTC offset of the camera's local clock [h] (raw camera logs only; no default on purpose)
+    camera_utc_offset: float | None = None
+    #: projected CRS for easting/northing, e.g. "EPSG:3765"
+    crs: str | None = None
+    #: POS column role -> header name remapping
+    pos_columns: dict[str, str] = field(default_factory=dict)
+    #: yaw-offset recovery: window length [s], window step [s] and drift-smoothing bandwidth [s]
+    yaw_window: float = 40.0
+    yaw_step: float = 10.0
+    yaw_bandwidth: float = 300.0
+    #: 1-sigma accuracy of the unit's own roll/pitch [deg] and of its yaw relative to its origin [deg]
+    unit_level_sigma: float = 0.1
+    unit_yaw_sigma: float = 0.05
+    #: per-axis filter: white acceleration noise [m/s^2] (None = estimated from the data)
+    axis_accel_sigma: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
+        for name in ("lever_arm_gnss", "lever_arm_camera", "boresight", "gnss_sigma"):
+            value = getattr(self, name)
+            if len(value) != 3:
+                raise ValueError(f"{name} needs three numbers, got {value!r}")
+            object.__setattr__(self, name, tuple(float(v) for v in value))
+        if min(self.gnss_sigma) <= 0:
+            raise ValueError(f"gnss_sigma must be positive metres, got {self.gnss_sigma}")
+
+    def updated(self, **changes: Any) -> ProcessingConfig:
+        """A copy with the given fields changed (``None`` values are ignored)."""
+        return replace(self, **{k: v for k, v in changes.items() if v is not None})
+
+
+#: TOML section -> keys it may hold (all map onto ProcessingConfig fields of the same name).
+_SECTIONS = {
+    "processing": {"method"},
+    "mounting": {"lever_arm_gnss", "lever_arm_camera", "boresight"},
+    "gnss": {"gnss_sigma", "gnss_rate_hz"},
+    "camera": {"camera_utc_offset"},
+    "output": {"crs"},
+    "yaw_offset": {"yaw_window", "yaw_step", "yaw_bandwidth"},
+    "unit": {"unit_level_sigma", "unit_yaw_sigma"},
+    "axis": {"axis_accel_sigma"},
+}
+
+
+def load_config(path: Path | str, base: ProcessingConfig | None = None) -> ProcessingConfig:
+    """Read a ``flight.toml``; unknown sections or keys are errors that name them."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(path, None, None, "configuration file not found")
+    try:
+        document = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        line = getattr(exc, "lineno", None)
+        raise InputError(path, line, None, f"not valid TOML: {exc}") from None
+    values: dict[str, Any] = {}
+    known_fields = {f.name for f in fields(ProcessingConfig)}
+    for section, content in document.items():
+        if section == "pos_columns":
+            values["pos_columns"] = {str(k): str(v) for k, v in content.items()}
+            continue
+        if section not in _SECTIONS or not isinstance(content, dict):
+            raise InputError(path, None, section, f"unknown section [{section}]; known: "
+                             f"{', '.join([*_SECTIONS, 'pos_columns'])}")
+        for key, value in content.items():
+            if key not in _SECTIONS[section] or key not in known_fields:
+                raise InputError(path, None, f"{section}.{key}", f"unknown key; [{section}] takes "
+                                 f"{', '.join(sorted(_SECTIONS[section]))}")
+            values[key] = tuple(value) if isinstance(value, list) else value
+    try:
+        return replace(base or ProcessingConfig(), **values)
+    except (TypeError, ValueError) as exc:
+        raise InputError(path, None, None, str(exc)) from None
+
+
+def config_to_toml(cfg: ProcessingConfig) -> str:
+    """The configuration as a ``flight.toml`` document (non-default and commonly edited values)."""
+
+    def fmt(value: Any) -> str:
+        if isinstance(value, tuple):
+            return "[" + ", ".join(f"{v:g}" for v in value) + "]"
+        if isinstance(value, str):
+            return f'"{value}"'
+        return f"{value:g}" if isinstance(value, float) else str(value)
+
+    out = []
+    for section, keys in _SECTIONS.items():
+        rows = [f"{key} = {fmt(getattr(cfg, key))}" for key in sorted(keys) if getattr(cfg, key) is not None]
+        if rows:
+            out.append(f"[{section}]\n" + "\n".join(rows))
+    if cfg.pos_columns:
+        out.append("[pos_columns]\n" + "\n".join(f'{k} = "{v}"' for k, v in cfg.pos_columns.items()))
+    return "\n\n".join(out) + "\n"

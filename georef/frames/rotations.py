@@ -1,0 +1,168 @@
+"""Rotations: ZYX Euler angles, direction cosine matrices, Hamilton quaternions, SLERP.
+
+Conventions (see ``docs/conventions.md``):
+
+* ``euler_to_dcm(roll, pitch, yaw) = Rz(yaw) @ Ry(pitch) @ Rx(roll) = C_b_n`` rotates body vectors into
+  NED (yaw about z, then pitch about the new y, then roll about the new x);
+* quaternions are Hamilton, scalar first ``q = [w, x, y, z]``, and ``quat_to_dcm(q)`` is the matrix that
+  rotates vectors of the frame ``q`` describes into the reference frame (``q_b_n -> C_b_n``);
+* angles in radians; yaw clockwise from north.
+
+All functions are vectorised over leading axes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation, Slerp
+
+Array = NDArray[np.float64]
+
+
+def wrap_pi(angle: ArrayLike) -> Array:
+    """Wrap angles [rad] to (-pi, pi]."""
+    angle = np.asarray(angle, dtype=float)
+    wrapped = np.mod(angle + np.pi, 2.0 * np.pi) - np.pi
+    return np.where(wrapped == -np.pi, np.pi, wrapped)
+
+
+def wrap_360(angle_deg: ArrayLike) -> Array:
+    """Wrap angles [deg] to [0, 360)."""
+    wrapped = np.mod(np.asarray(angle_deg, dtype=float), 360.0)
+    return np.where(wrapped >= 360.0, 0.0, wrapped)
+
+
+def skew(v: ArrayLike) -> Array:
+    """Skew-symmetric cross-product matrix ``[v x]`` of (..., 3) vectors, shape (..., 3, 3)."""
+    v = np.asarray(v, dtype=float)
+    zero = np.zeros(v.shape[:-1])
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    return np.stack(
+        [np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], axis=-2
+    )
+
+
+def euler_to_dcm(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> Array:
+    """ZYX Euler angles [rad] to ``C_b_n = Rz(yaw) Ry(pitch) Rx(roll)``, shape (..., 3, 3)."""
+    roll, pitch, yaw = np.broadcast_arrays(
+        np.asarray(roll, float), np.asarray(pitch, float), np.asarray(yaw, float)
+    )
+    sr, cr = np.sin(roll), np.cos(roll)
+    sp, cp = np.sin(pitch), np.cos(pitch)
+    sy, cy = np.sin(yaw), np.cos(yaw)
+    rows = [
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ]
+    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
+
+
+def dcm_to_euler(C_b_n: ArrayLike) -> tuple[Array, Array, Array]:
+    """``C_b_n`` (..., 3, 3) to ZYX Euler angles roll, pitch, yaw [rad]; yaw in (-pi, pi].
+
+    Pitch is clipped to [-pi/2, pi/2]; at gimbal lock (|pitch| = 90 deg) roll is returned as 0.
+    """
+    C = np.asarray(C_b_n, dtype=float)
+    pitch = -np.arcsin(np.clip(C[..., 2, 0], -1.0, 1.0))
+    roll = np.arctan2(C[..., 2, 1], C[..., 2, 2])
+    yaw = np.arctan2(C[..., 1, 0], C[..., 0, 0])
+    return roll, pitch, wrap_pi(yaw)
+
+
+def quat_to_dcm(q: ArrayLike) -> Array:
+    """Hamilton scalar-first quaternion(s) (..., 4) to rotation matrices (..., 3, 3); q is normalised."""
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    rows = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
+    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
+
+
+def dcm_to_quat(C: ArrayLike) -> Array:
+    """Rotation matrices (..., 3, 3) to Hamilton scalar-first unit quaternions (..., 4), w >= 0.
+
+    Shepperd's method: the largest of the four squared components is taken first for stability.
+    """
+    C = np.asarray(C, dtype=float)
+    tr = np.trace(C, axis1=-2, axis2=-1)
+    diag = np.stack([tr, C[..., 0, 0], C[..., 1, 1], C[..., 2, 2]], axis=-1)
+    choice = np.argmax(diag, axis=-1)
+    q = np.empty(C.shape[:-2] + (4,))
+    # case 0: w largest
+    s = np.sqrt(np.maximum(1.0 + tr, 0.0)) * 2.0
+    q0 = np.stack([0.25 * s, (C[..., 2, 1] - C[..., 1, 2]) / s, (C[..., 0, 2] - C[..., 2, 0]) / s,
+                   (C[..., 1, 0] - C[..., 0, 1]) / s], axis=-1)
+    s = np.sqrt(np.maximum(1.0 + C[..., 0, 0] - C[..., 1, 1] - C[..., 2, 2], 0.0)) * 2.0
+    q1 = np.stack([(C[..., 2, 1] - C[..., 1, 2]) / s, 0.25 * s, (C[..., 0, 1] + C[..., 1, 0]) / s,
+                   (C[..., 0, 2] + C[..., 2, 0]) / s], axis=-1)
+    s = np.sqrt(np.maximum(1.0 - C[..., 0, 0] + C[..., 1, 1] - C[..., 2, 2], 0.0)) * 2.0
+    q2 = np.stack([(C[..., 0, 2] - C[..., 2, 0]) / s, (C[..., 0, 1] + C[..., 1, 0]) / s, 0.25 * s,
+                   (C[..., 1, 2] + C[..., 2, 1]) / s], axis=-1)
+    s = np.sqrt(np.maximum(1.0 - C[..., 0, 0] - C[..., 1, 1] + C[..., 2, 2], 0.0)) * 2.0
+    q3 = np.stack([(C[..., 1, 0] - C[..., 0, 1]) / s, (C[..., 0, 2] + C[..., 2, 0]) / s,
+                   (C[..., 1, 2] + C[..., 2, 1]) / s, 0.25 * s], axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for k, candidate in enumerate((q0, q1, q2, q3)):
+            mask = choice == k
+            q[mask] = candidate[mask]
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0.0, -q, q)
+
+
+def quat_multiply(p: ArrayLike, q: ArrayLike) -> Array:
+    """Hamilton product ``p ⊗ q`` of scalar-first quaternions (..., 4)."""
+    p = np.asarray(p, dtype=float)
+    q = np.asarray(q, dtype=float)
+    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack(
+        [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ],
+        axis=-1,
+    )
+
+
+def rotvec_to_quat(rotvec: ArrayLike) -> Array:
+    """Rotation vector [rad] (..., 3) to a scalar-first quaternion ``[cos(a/2), sin(a/2) u]``."""
+    rotvec = np.asarray(rotvec, dtype=float)
+    angle = np.linalg.norm(rotvec, axis=-1, keepdims=True)
+    half = 0.5 * angle
+    # sin(a/2)/a with its series near zero
+    with np.errstate(invalid="ignore", divide="ignore"):
+        factor = np.where(angle > 1e-8, np.sin(half) / np.where(angle > 0, angle, 1.0), 0.5 - angle**2 / 48.0)
+    return np.concatenate([np.cos(half), factor * rotvec], axis=-1)
+
+
+def rotation_from_dcm(C: ArrayLike) -> Rotation:
+    """A scipy ``Rotation`` from rotation matrices; the matrix maps frame-b vectors into frame-n."""
+    return Rotation.from_matrix(np.asarray(C, dtype=float))
+
+
+def slerp_dcm(times: ArrayLike, C: ArrayLike, new_times: ArrayLike) -> Array:
+    """Interpolate rotation matrices (N, 3, 3) given at increasing ``times`` [s] to ``new_times`` on SO(3).
+
+    Spherical linear interpolation (scipy ``Slerp``) between the bracketing samples; ``new_times`` must
+    lie inside ``[times[0], times[-1]]``.
+    """
+    slerp = Slerp(np.asarray(times, dtype=float), rotation_from_dcm(C))
+    return slerp(np.asarray(new_times, dtype=float)).as_matrix()
+
+
+def slerp_euler(
+    times: ArrayLike, roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike, new_times: ArrayLike
+) -> tuple[Array, Array, Array]:
+    """Interpolate ZYX Euler angles [rad] from ``times`` to ``new_times`` [s] on the rotation group.
+
+    Unlike a linear interpolation of the angles, this is correct across the +-180 deg yaw wrap.
+    """
+    return dcm_to_euler(slerp_dcm(times, euler_to_dcm(roll, pitch, yaw), new_times))

@@ -1,0 +1,52 @@
+"""Errors and warnings about input files that name the file, the line and the column."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+
+class GeorefError(Exception):
+    """Base class of the errors georef reports to a user without a traceback."""
+
+
+@dataclass
+class InputError(GeorefError):
+    """A problem with an input file, located by 1-based line number (the header is line 1) and column."""
+
+    path: Path | str
+    line: int | None
+    column: str | None
+    message: str
+
+    def __post_init__(self) -> None:
+        super().__init__(str(self))
+
+    def __str__(self) -> str:
+        where = f"{self.path}"
+        if self.line is not None:
+            where += f", line {self.line}"
+        if self.column is not None:
+            where += f", column {self.column!r}"
+        return f"{where}: {self.message}"
+
+
+@dataclass
+class InputNotice:
+    """Something repaired or skipped in an input file: never silent, always in the summary."""
+
+    path: Path | str
+    lines: list[int]
+    column: str | None
+    message: str
+
+    def __str__(self) -> str:
+        shown = ", ".join(str(n) for n in self.lines[:8])
+        if len(self.lines) > 8:
+            shown += f", ... ({len(self.lines)} lines)"
+        where = f"{self.path}"
+        if self.lines:
+            where += f", line{'s' if len(self.lines) > 1 else ''} {shown}"
+        if self.column is not None:
+            where += f", column {self.column!r}"
+        return f"{where}: {self.message}"

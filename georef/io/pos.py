@@ -1,0 +1,158 @@
+"""Reader of the POS unit's log (iMAR iVRU-style ``POS.txt``), see ``docs/formats.md``.
+
+Columns are found by header name. Each column has a *role*; the default preset maps roles to the iMAR
+names and a user can remap any role in the flight configuration (``[pos_columns]`` in flight.toml).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from georef.align import (
+    GnssEpochs,
+    TimeRepairReport,
+    check_increasing,
+    extract_gnss_epochs,
+    pos_sample_times,
+)
+from georef.io.errors import InputError, InputNotice
+from georef.io.table import Kind, read_table
+
+#: Role -> (default header name, kind). Units: ACCS/IACC m/s^2, OMGS/IOMG deg/s, angles deg,
+#: TRIG_TIME s x 100, SAMPL_TIME us, LAT/LON deg, ALTITUDE m (ellipsoidal), VELOCITY m/s.
+POS_ROLES: dict[str, tuple[str, Kind]] = {
+    "counter": ("CNT[HEX]", "hex"),
+    "acc_x": ("ACCS_X", "float"), "acc_y": ("ACCS_Y", "float"), "acc_z": ("ACCS_Z", "float"),
+    "iacc_x": ("IACC_X", "float"), "iacc_y": ("IACC_Y", "float"), "iacc_z": ("IACC_Z", "float"),
+    "gyro_x": ("OMGS_X", "float"), "gyro_y": ("OMGS_Y", "float"), "gyro_z": ("OMGS_Z", "float"),
+    "igyro_x": ("IOMG_X", "float"), "igyro_y": ("IOMG_Y", "float"), "igyro_z": ("IOMG_Z", "float"),
+    "roll": ("ROLL", "float"), "pitch": ("PITCH", "float"), "yaw": ("YAW", "float"),
+    "trig_time": ("TRIG_TIME", "int"), "sampl_time": ("SAMPL_TIME", "int"),
+    "imu_temp": ("IMU_TEMP", "float"), "sens_temp": ("SENS_TEMP", "float"),
+    "lon": ("LONGITUDE", "float"), "lat": ("LATITUDE", "float"), "alt": ("ALTITUDE", "float"),
+    "gnss_speed": ("VELOCITY", "float"),
+    "status": ("STATUS[HEX]", "hex"),
+}
+
+#: Roles every reading needs.
+BASE_ROLES = ("trig_time", "sampl_time", "lat", "lon", "alt")
+
+
+@dataclass
+class PosLog:
+    """A POS log on the continuous time scale.
+
+    ``time`` [UTC s of day, continuous across midnight]; ``data[role]`` in the file's units (see
+    :data:`POS_ROLES`); ``lines`` the 1-based file line of every row; ``gnss`` the extracted fixes.
+    """
+
+    path: Path
+    time: np.ndarray
+    data: dict[str, np.ndarray]
+    lines: np.ndarray
+    gnss: GnssEpochs
+    time_repairs: TimeRepairReport
+    notices: list[InputNotice] = field(default_factory=list)
+    column_names: dict[str, str] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.time)
+
+    @property
+    def sample_rate_hz(self) -> float:
+        """Median IMU row rate [Hz]."""
+        return float(1.0 / np.median(np.diff(self.time))) if len(self.time) > 1 else float("nan")
+
+    def vector(self, prefix: str) -> np.ndarray:
+        """Stack the roles ``prefix_x, prefix_y, prefix_z`` into an (N, 3) array."""
+        return np.stack([self.data[f"{prefix}_{axis}"] for axis in "xyz"], axis=-1)
+
+
+def resolve_columns(overrides: Mapping[str, str] | None = None) -> dict[str, str]:
+    """Role -> header name, the default preset with the user's remapping applied."""
+    names = {role: spec[0] for role, spec in POS_ROLES.items()}
+    for role, name in (overrides or {}).items():
+        if role not in POS_ROLES:
+            raise ValueError(f"unknown POS column role {role!r}; known roles: {', '.join(POS_ROLES)}")
+        names[role] = name
+    return names
+
+
+def read_pos(
+    path: Path | str,
+    required_roles: Iterable[str] = (),
+    column_names: Mapping[str, str] | None = None,
+    gnss_rate_hz: float | None = None,
+) -> PosLog:
+    """Read a POS.txt log: times repaired and unwrapped, GNSS fixes extracted, every problem located.
+
+    ``required_roles`` are the roles (beyond time and GNSS) the chosen method needs; a missing one is an
+    :class:`InputError` on line 1. Exact duplicate rows are dropped with a notice; a time that goes
+    backwards (other than across midnight) or a repeated time with different values is an error.
+    """
+    path = Path(path)
+    names = resolve_columns(column_names)
+    required = set(BASE_ROLES) | set(required_roles)
+    wanted = {names[role]: POS_ROLES[role][1] for role in POS_ROLES}
+    table = read_table(path, wanted, required={names[role] for role in required})
+    notices = list(table.notices)
+    data = {role: table.columns[names[role]] for role in POS_ROLES if names[role] in table.columns}
+    lines = table.lines
+
+    sampl = data["sampl_time"]
+    bad_sampl = np.flatnonzero((sampl < 0) | (sampl >= 1_000_000))
+    if len(bad_sampl):
+        i = bad_sampl[0]
+        raise InputError(path, int(lines[i]), names["sampl_time"],
+                         f"SAMPL_TIME {sampl[i]:.0f} us is outside 0..999999")
+    times, repairs = pos_sample_times(data["trig_time"], sampl, lines)
+    if repairs.n_quirks:
+        notices.append(InputNotice(path, repairs.quirk_lines, names["trig_time"],
+                                   f"TRIG_TIME logger quirk repaired {repairs.n_quirks} time(s) "
+                                   "(rose by other than a whole second)"))
+    if repairs.midnight_lines:
+        notices.append(InputNotice(path, repairs.midnight_lines, names["trig_time"],
+                                   "midnight roll-over: later times continue past 86400 s"))
+
+    # Exact duplicate rows (same time and same values) are dropped and reported.
+    same_time = np.flatnonzero(np.diff(times) == 0) + 1
+    if len(same_time):
+        identical = np.ones(len(same_time), dtype=bool)
+        for values in data.values():
+            identical &= values[same_time] == values[same_time - 1]
+        if not identical.all():
+            i = same_time[~identical][0]
+            raise InputError(path, int(lines[i]), f"{names['trig_time']}/{names['sampl_time']}",
+                             f"same time stamp as line {int(lines[i - 1])} but different values")
+        notices.append(InputNotice(path, lines[same_time].tolist(), None,
+                                   f"{len(same_time)} duplicate row(s) dropped (identical to the row before)"))
+        keep = np.ones(len(times), dtype=bool)
+        keep[same_time] = False
+        times, lines = times[keep], lines[keep]
+        data = {role: values[keep] for role, values in data.items()}
+    check_increasing(path, times, lines, f"{names['trig_time']}/{names['sampl_time']}")
+
+    if "counter" in data and len(data["counter"]) > 1:
+        step = np.diff(data["counter"].astype(np.int64))
+        jumps = np.flatnonzero(step > 1)
+        if len(jumps):
+            notices.append(InputNotice(path, lines[jumps + 1].tolist(), names["counter"],
+                                       f"record counter skips {int((step[jumps] - 1).sum())} record(s): "
+                                       "rows missing from the log"))
+
+    lat, lon, alt = data["lat"], data["lon"], data["alt"]
+    out_of_range = np.flatnonzero((np.abs(lat) > 90) | (np.abs(lon) > 180))
+    if len(out_of_range):
+        i = out_of_range[0]
+        column = names["lat"] if abs(lat[i]) > 90 else names["lon"]
+        raise InputError(path, int(lines[i]), column, f"coordinate {lat[i] if abs(lat[i]) > 90 else lon[i]} "
+                         "is outside the valid range (degrees expected)")
+    gnss = extract_gnss_epochs(path, times, lat, lon, alt, lines, rate_hz=gnss_rate_hz,
+                               ground_speed=data.get("gnss_speed"))
+    notices.extend(gnss.notices)
+    return PosLog(path=path, time=times, data=data, lines=lines, gnss=gnss, time_repairs=repairs,
+                  notices=notices, column_names={role: names[role] for role in data})

@@ -1,0 +1,53 @@
+"""Write a simulated flight as the files a user holds, plus the truth and a matching flight.toml."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from georef.config import ProcessingConfig, config_to_toml
+from georef.io.atomic import atomic_write
+from georef.sim.flight import SimulatedFlight
+
+#: Decimals written per POS column (about what the iMAR export carries, GNSS to 1 mm).
+_DECIMALS = {"ACCS": 5, "IACC": 5, "OMGS": 5, "IOMG": 5, "ROLL": 5, "PITCH": 5, "YAW": 5,
+             "LONGITUDE": 9, "LATITUDE": 9, "ALTITUDE": 4, "VELOCITY": 3, "IMU_TEMP": 2, "SENS_TEMP": 2}
+
+
+def _rounded(pos: pd.DataFrame) -> pd.DataFrame:
+    out = pos.copy()
+    for column in out.columns:
+        key = column.split("_")[0] if column.split("_")[0] in _DECIMALS else column
+        if key in _DECIMALS:
+            out[column] = np.round(out[column].to_numpy(float), _DECIMALS[key])
+    return out
+
+
+def processing_config_for(flight: SimulatedFlight) -> ProcessingConfig:
+    """The processing configuration that matches the simulated installation."""
+    cfg = flight.config
+    return ProcessingConfig(lever_arm_gnss=cfg.lever_arm_gnss_m, lever_arm_camera=cfg.lever_arm_camera_m,
+                            boresight=cfg.boresight_deg, gnss_sigma=cfg.gnss.sigma_neu_m,
+                            gnss_rate_hz=cfg.gnss.rate_hz)
+
+
+def write_flight(flight: SimulatedFlight, folder: Path | str) -> dict[str, Path]:
+    """Write ``POS.txt``, ``Kamera.txt``, ``truth.csv`` and ``flight.toml`` into ``folder``."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = {name: folder / name for name in ("POS.txt", "Kamera.txt", "truth.csv", "flight.toml")}
+    with atomic_write(paths["POS.txt"]) as handle:
+        _rounded(flight.pos).to_csv(handle, sep="\t", index=False, lineterminator="\n")
+    seconds = np.floor(flight.exposures["time"].to_numpy() + 1e-9).astype(int)
+    millis = np.round((flight.exposures["time"].to_numpy() - seconds) * 1000).astype(int)
+    kamera = pd.DataFrame({"Number": flight.exposures["frame"], "Time": seconds % 86400, "Milliseconds": millis})
+    with atomic_write(paths["Kamera.txt"]) as handle:
+        kamera.to_csv(handle, sep="\t", index=False, lineterminator="\n")
+    with atomic_write(paths["truth.csv"]) as handle:
+        flight.truth_frames.to_csv(handle, index=False, float_format="%.10g", lineterminator="\n")
+    with atomic_write(paths["flight.toml"]) as handle:
+        handle.write("# Processing settings matching the simulated installation (georef simulate).\n")
+        handle.write(config_to_toml(processing_config_for(flight)))
+    return paths
