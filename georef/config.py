@@ -37,14 +37,19 @@ class ProcessingConfig:
     #: POS column role -> header name remapping
     pos_columns: dict[str, str] = field(default_factory=dict)
     #: yaw-offset recovery: window length [s], window step [s] and drift-smoothing bandwidth [s]
-    yaw_window: float = 40.0
-    yaw_step: float = 10.0
+    yaw_window: float = 60.0
+    yaw_step: float = 15.0
     yaw_bandwidth: float = 300.0
     #: 1-sigma accuracy of the unit's own roll/pitch [deg] and of its yaw relative to its origin [deg]
     unit_level_sigma: float = 0.1
     unit_yaw_sigma: float = 0.05
-    #: per-axis filter: white acceleration noise [m/s^2] (None = estimated from the data)
+    #: per-axis filter: white acceleration noise per sample [m/s^2] (None = estimated from the data)
     axis_accel_sigma: float | None = None
+    #: per-axis filter: slowly varying acceleration error (bias, yaw-offset error) [m/s^2] and its time [s]
+    axis_bias_sigma: float = 0.025
+    axis_bias_time: float = 60.0
+    #: innovation gate: chi-square threshold of a 3-D GNSS position innovation (16.27 = 99.9 %)
+    gate_chi2: float = 16.27
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -71,7 +76,8 @@ _SECTIONS = {
     "output": {"crs"},
     "yaw_offset": {"yaw_window", "yaw_step", "yaw_bandwidth"},
     "unit": {"unit_level_sigma", "unit_yaw_sigma"},
-    "axis": {"axis_accel_sigma"},
+    "axis": {"axis_accel_sigma", "axis_bias_sigma", "axis_bias_time"},
+    "gnss_gate": {"gate_chi2"},
 }
 
 

@@ -1,0 +1,93 @@
+"""Exterior orientation of every frame: lever arm and boresight applied, sigmas propagated, flags set.
+
+Columns (``docs/formats.md``): ``frame, time, lat, lon, height, roll, pitch, yaw, sigma_n, sigma_e,
+sigma_u, sigma_roll, sigma_pitch, sigma_yaw, track, yaw_minus_track`` [+ ``easting, northing``], ``flag``.
+Angles in degrees (yaw and track in [0, 360)), heights ellipsoidal [m], sigmas 1-sigma in m and deg.
+Roll, pitch and yaw are the ZYX Euler angles of the *camera* frame relative to local NED.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from georef.align import GnssEpochs
+from georef.config import ProcessingConfig
+from georef.exposure import ExposureStates
+from georef.frames import C_e_n, dcm_to_euler, ecef_to_geodetic, skew, wrap_360
+from georef.frames.mapping import MapProjection
+from georef.frames.mounting import camera_attitude, lever_arm_ecef
+from georef.io.camera import Exposures
+
+EO_COLUMNS = ["frame", "time", "lat", "lon", "height", "roll", "pitch", "yaw", "sigma_n", "sigma_e", "sigma_u",
+              "sigma_roll", "sigma_pitch", "sigma_yaw", "track", "yaw_minus_track"]
+
+FLAG_OUTSIDE = "outside navigation span"
+FLAG_OUTAGE = "in GNSS outage"
+FLAG_DUPLICATE = "duplicate frame number"
+FLAG_ORDER = "time earlier than previous frame"
+
+
+def _flags(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, outage_min_s: float) -> np.ndarray:
+    flags: list[list[str]] = [[] for _ in range(len(exposures))]
+    for i in np.flatnonzero(~states.inside):
+        flags[i].append(FLAG_OUTSIDE)
+    for start, end in gnss.gaps():
+        if end - start >= outage_min_s:
+            for i in np.flatnonzero(states.inside & (exposures.time > start) & (exposures.time < end)):
+                flags[i].append(f"{FLAG_OUTAGE} ({end - start:.0f} s)")
+    _, inverse, counts = np.unique(exposures.frame, return_inverse=True, return_counts=True)
+    for i in np.flatnonzero(counts[inverse] > 1):
+        flags[i].append(FLAG_DUPLICATE)
+    for i in np.flatnonzero(np.diff(exposures.time) < 0) + 1:
+        flags[i].append(FLAG_ORDER)
+    return np.array(["; ".join(f) for f in flags], dtype=object)
+
+
+def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, cfg: ProcessingConfig,
+                    outage_min_s: float = 2.5) -> pd.DataFrame:
+    """The EO table of every exposure (rows outside the navigation span have empty values and a flag)."""
+    inside = states.inside
+    n = len(exposures)
+    out = {name: np.full(n, np.nan) for name in EO_COLUMNS[2:]}
+    if inside.any():
+        r_imu = states.r_e[inside]
+        lat_i, lon_i, _ = ecef_to_geodetic(r_imu)
+        C_b_n = states.C_b_n[inside]
+        lever_cam = np.asarray(cfg.lever_arm_camera)
+        r_cam = r_imu + lever_arm_ecef(lat_i, lon_i, C_b_n, lever_cam)
+        lat, lon, height = ecef_to_geodetic(r_cam)
+        C_c_n = camera_attitude(C_b_n, np.radians(cfg.boresight))
+        roll, pitch, yaw = dcm_to_euler(C_c_n)
+        # Position covariance at the camera: IMU position plus the lever arm turned by attitude errors,
+        # d(C_b_n l) = -[(C_b_n l) x] d_theta (small NED tilt errors ~ roll, pitch, yaw errors).
+        lever_n = C_b_n @ lever_cam
+        S = skew(lever_n)
+        att_var = states.att_sigma[inside] ** 2
+        lever_var = np.einsum("nij,nj->ni", S**2, att_var)
+        pos_sigma = np.sqrt(states.pos_var_n[inside] + lever_var)
+        v_n = np.einsum("nij,nj->ni", C_e_n(lat_i, lon_i), states.v_e[inside])
+        track = np.degrees(np.arctan2(v_n[:, 1], v_n[:, 0]))
+        yaw_deg = np.degrees(yaw)
+        values = {
+            "lat": np.degrees(lat), "lon": np.degrees(lon), "height": height,
+            "roll": np.degrees(roll), "pitch": np.degrees(pitch), "yaw": wrap_360(yaw_deg),
+            "sigma_n": pos_sigma[:, 0], "sigma_e": pos_sigma[:, 1], "sigma_u": pos_sigma[:, 2],
+            "sigma_roll": np.degrees(states.att_sigma[inside, 0]),
+            "sigma_pitch": np.degrees(states.att_sigma[inside, 1]),
+            "sigma_yaw": np.degrees(states.att_sigma[inside, 2]),
+            "track": wrap_360(track), "yaw_minus_track": (yaw_deg - track + 180.0) % 360.0 - 180.0,
+        }
+        for name, value in values.items():
+            out[name][inside] = value
+    table = pd.DataFrame({"frame": exposures.frame, "time": exposures.time, **out})
+    if cfg.crs:
+        projection = MapProjection(cfg.crs)
+        easting = np.full(n, np.nan)
+        northing = np.full(n, np.nan)
+        if inside.any():
+            easting[inside], northing[inside] = projection.forward(out["lat"][inside], out["lon"][inside])
+        table["easting"] = easting
+        table["northing"] = northing
+    table["flag"] = _flags(exposures, states, gnss, outage_min_s)
+    return table

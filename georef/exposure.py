@@ -1,0 +1,72 @@
+"""Interpolation of a navigation solution to exposure times.
+
+* Positions: cubic Hermite in ECEF between the bracketing IMU rows, using the ECEF velocities.
+* Attitude: SLERP on the rotation group (correct across the +-180 deg yaw wrap).
+* Variances and sigmas: linear between rows.
+* Times outside the solution's valid span are *not* extrapolated; they are marked so the frame gets a
+  flagged row with empty values.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from georef.frames import euler_to_dcm
+from georef.frames.rotations import slerp_dcm
+from georef.fusion.solution import NavSolution
+
+
+@dataclass
+class ExposureStates:
+    """IMU state at each exposure (NaN where ``inside`` is False). Units as in :class:`NavSolution`."""
+
+    time: np.ndarray
+    inside: np.ndarray
+    r_e: np.ndarray
+    v_e: np.ndarray
+    C_b_n: np.ndarray
+    pos_var_n: np.ndarray
+    att_sigma: np.ndarray
+
+
+def hermite(t: np.ndarray, t0: np.ndarray, t1: np.ndarray, p0: np.ndarray, p1: np.ndarray,
+            v0: np.ndarray, v1: np.ndarray) -> np.ndarray:
+    """Cubic Hermite interpolation of (K, 3) positions with velocities between times t0 and t1 [s]."""
+    h = (t1 - t0)[:, None]
+    s = ((t - t0) / (t1 - t0))[:, None]
+    h00 = 2 * s**3 - 3 * s**2 + 1
+    h10 = s**3 - 2 * s**2 + s
+    h01 = -2 * s**3 + 3 * s**2
+    h11 = s**3 - s**2
+    return h00 * p0 + h10 * h * v0 + h01 * p1 + h11 * h * v1
+
+
+def interpolate_to_exposures(nav: NavSolution, times: np.ndarray) -> ExposureStates:
+    """The IMU state of ``nav`` at exposure ``times`` [s] (same continuous UTC scale)."""
+    times = np.asarray(times, dtype=float)
+    rows = np.flatnonzero(nav.valid)
+    k = len(times)
+    r_e = np.full((k, 3), np.nan)
+    v_e = np.full((k, 3), np.nan)
+    C_b_n = np.full((k, 3, 3), np.nan)
+    pos_var = np.full((k, 3), np.nan)
+    att_sigma = np.full((k, 3), np.nan)
+    if len(rows) < 2:
+        return ExposureStates(times, np.zeros(k, bool), r_e, v_e, C_b_n, pos_var, att_sigma)
+    t_valid = nav.time[rows]
+    inside = (times >= t_valid[0]) & (times <= t_valid[-1])
+    ti = times[inside]
+    upper = np.clip(np.searchsorted(t_valid, ti, side="right"), 1, len(t_valid) - 1)
+    i0, i1 = rows[upper - 1], rows[upper]
+    r_e[inside] = hermite(ti, nav.time[i0], nav.time[i1], nav.r_e[i0], nav.r_e[i1], nav.v_e[i0], nav.v_e[i1])
+    w = ((ti - nav.time[i0]) / (nav.time[i1] - nav.time[i0]))[:, None]
+    v_e[inside] = (1 - w) * nav.v_e[i0] + w * nav.v_e[i1]
+    pos_var[inside] = (1 - w) * nav.pos_var_n[i0] + w * nav.pos_var_n[i1]
+    att_sigma[inside] = (1 - w) * nav.att_sigma[i0] + w * nav.att_sigma[i1]
+    # SLERP only needs the two bracketing rows of every exposure.
+    needed = np.unique(np.concatenate([i0, i1]))
+    C_rows = euler_to_dcm(nav.roll[needed], nav.pitch[needed], nav.yaw[needed])
+    C_b_n[inside] = slerp_dcm(nav.time[needed], C_rows, ti)
+    return ExposureStates(times, inside, r_e, v_e, C_b_n, pos_var, att_sigma)

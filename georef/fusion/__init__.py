@@ -1,0 +1,1 @@
+"""Navigation solutions: yaw-offset recovery and the fusion methods (``axis`` for now)."""

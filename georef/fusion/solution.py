@@ -1,0 +1,74 @@
+"""The navigation solution every fusion method returns, at the IMU rows."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from georef.frames import C_e_n, C_n_e
+
+
+@dataclass
+class GnssUse:
+    """How each GNSS fix was used: time [s], status (1 used, 0 rejected, 2 forced after rejections,
+    -1 outside the IMU span), innovation [m] and innovation variance [m^2] per ECEF axis, file line."""
+
+    time: np.ndarray
+    status: np.ndarray
+    innovation: np.ndarray
+    innovation_var: np.ndarray
+    line: np.ndarray
+
+    @property
+    def rejected_lines(self) -> list[int]:
+        return [int(x) for x in self.line[self.status == 0]]
+
+    @property
+    def normalised_innovation_sq(self) -> np.ndarray:
+        """Per-fix chi-square statistic of the 3-D innovation (diagonal innovation covariance)."""
+        return np.sum(self.innovation**2 / self.innovation_var, axis=1)
+
+
+@dataclass
+class NavSolution:
+    """IMU navigation at the POS rows, SI units.
+
+    ``r_e`` ECEF position of the IMU [m], ``v_e`` ECEF velocity [m/s], ``lat``/``lon`` [rad] and
+    ``height`` [m] of the IMU, body attitude ``roll, pitch, yaw`` [rad] (ZYX, body-to-NED),
+    ``pos_var_n`` NED position variances [m^2] (N, 3), ``att_sigma`` roll/pitch/yaw 1-sigma [rad] (N, 3),
+    ``valid`` rows that carry a solution.
+    """
+
+    method: str
+    time: np.ndarray
+    r_e: np.ndarray
+    v_e: np.ndarray
+    lat: np.ndarray
+    lon: np.ndarray
+    height: np.ndarray
+    roll: np.ndarray
+    pitch: np.ndarray
+    yaw: np.ndarray
+    pos_var_n: np.ndarray
+    att_sigma: np.ndarray
+    valid: np.ndarray
+    gnss: GnssUse
+    info: dict = field(default_factory=dict)
+
+    @property
+    def v_n(self) -> np.ndarray:
+        """NED velocity [m/s] (N, 3)."""
+        return np.einsum("nij,nj->ni", C_e_n(self.lat, self.lon), self.v_e)
+
+
+def ecef_variances_to_ned(lat: np.ndarray, lon: np.ndarray, var_e: np.ndarray) -> np.ndarray:
+    """NED variances [m^2] (N, 3) of a position whose ECEF covariance is ``diag(var_e)``."""
+    C = C_e_n(lat, lon)
+    return np.einsum("nij,nj->ni", C**2, var_e)
+
+
+def ned_variances_to_ecef(lat: np.ndarray, lon: np.ndarray, var_n: np.ndarray) -> np.ndarray:
+    """Diagonal of the ECEF covariance [m^2] (N, 3) of a position with NED covariance ``diag(var_n)``."""
+    C = C_n_e(lat, lon)
+    return np.einsum("nij,nj->ni", C**2, var_n)

@@ -1,0 +1,111 @@
+"""The whole path of ``georef process``: read -> time-align -> fuse -> interpolate -> mount -> table.
+
+>>> from georef.pipeline import process
+>>> result = process("POS.txt", "Kamera.txt", ProcessingConfig(lever_arm_gnss=(0.4, 0.1, -1.6)))
+>>> result.table  # one row per frame, see georef.eo
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from georef.align import to_reference_day
+from georef.config import ProcessingConfig
+from georef.eo import FLAG_OUTSIDE, camera_eo_table
+from georef.exposure import interpolate_to_exposures
+from georef.fusion import axis
+from georef.fusion.solution import NavSolution
+from georef.io.camera import Exposures, read_camera_log, read_kamera
+from georef.io.errors import InputNotice
+from georef.io.pos import PosLog, read_pos
+
+SOLVERS: dict[str, tuple[Callable[[PosLog, ProcessingConfig], NavSolution], tuple[str, ...]]] = {
+    "axis": (axis.solve_axis, axis.REQUIRED_ROLES),
+}
+
+Progress = Callable[[str], None]
+
+
+@dataclass
+class ProcessResult:
+    """Everything ``process`` produced: the EO table, the navigation solution and what was noticed."""
+
+    table: pd.DataFrame
+    nav: NavSolution
+    log: PosLog
+    exposures: Exposures
+    config: ProcessingConfig
+    notices: list[InputNotice] = field(default_factory=list)
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def summary(self) -> dict[str, object]:
+        """Figures for the end-of-run report (units in the keys)."""
+        flags = self.table["flag"].astype(str)
+        yaw = self.nav.info.get("yaw_offset")
+        gnss = self.nav.gnss
+        return {
+            "frames_written": len(self.table),
+            "frames_flagged": int((flags != "").sum()),
+            "frames_outside_span": int(flags.str.contains(FLAG_OUTSIDE).sum()),
+            "frames_in_outage": int(flags.str.contains("GNSS outage").sum()),
+            "time_span_s": (float(self.log.time[0]), float(self.log.time[-1])),
+            "imu_rows": len(self.log),
+            "imu_rate_hz": self.log.sample_rate_hz,
+            "gnss_epochs": len(self.log.gnss),
+            "gnss_used": int((gnss.status >= 1).sum()),
+            "gnss_rejected_lines": gnss.rejected_lines,
+            "gnss_gaps": self.log.gnss.gaps(),
+            "yaw_offset_deg": None if yaw is None else float(np.degrees(yaw.offset)),
+            "yaw_offset_sigma_deg": None if yaw is None else float(np.degrees(yaw.offset_sigma)),
+            "yaw_drift_deg_per_min": None if yaw is None else float(np.degrees(yaw.drift) * 60),
+            "yaw_drift_sigma_deg_per_min": None if yaw is None else float(np.degrees(yaw.drift_sigma) * 60),
+            "time_quirks_repaired": self.log.time_repairs.n_quirks,
+            "method": self.nav.method,
+        }
+
+
+def read_exposures(path: Path | str, cfg: ProcessingConfig) -> Exposures:
+    """Kamera.txt or the camera's raw log, told apart by the raw log's ``Exposition`` header column."""
+    path = Path(path)
+    header = ""
+    if path.exists() and path.is_file():
+        with open(path, encoding="utf-8", errors="replace") as handle:
+            header = handle.readline()
+    if "Exposition" in header.split("\t") or "Exposition" in header:
+        return read_camera_log(path, cfg.camera_utc_offset)
+    return read_kamera(path)
+
+
+def process(pos_path: Path | str, camera_path: Path | str, cfg: ProcessingConfig,
+            progress: Progress | None = None) -> ProcessResult:
+    """Georeference every frame of ``camera_path`` from the POS log ``pos_path`` with ``cfg.method``."""
+    say = progress or (lambda _step: None)
+    timings: dict[str, float] = {}
+    solver, roles = SOLVERS[cfg.method]
+
+    start = time.perf_counter()
+    say("reading POS log")
+    log = read_pos(pos_path, required_roles=roles, column_names=cfg.pos_columns, gnss_rate_hz=cfg.gnss_rate_hz)
+    say("reading exposures")
+    exposures = read_exposures(camera_path, cfg)
+    exposures.time = to_reference_day(exposures.time, float(log.time[0]), float(log.time[-1]))
+    timings["read"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    say(f"fusing ({cfg.method})")
+    nav = solver(log, cfg)
+    timings["fuse"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    say("interpolating to exposures")
+    states = interpolate_to_exposures(nav, exposures.time)
+    table = camera_eo_table(exposures, states, log.gnss, cfg)
+    timings["interpolate"] = time.perf_counter() - start
+    return ProcessResult(table=table, nav=nav, log=log, exposures=exposures, config=cfg,
+                         notices=[*log.notices, *exposures.notices], timings=timings)
