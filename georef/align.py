@@ -37,8 +37,9 @@ def pos_sample_times(
 
     The logger sometimes raises TRIG_TIME by 1 instead of 100 at a new second. A block of rows with one
     TRIG_TIME value is accepted when it lies a whole number of seconds after the (repaired) previous
-    block. Otherwise it is a quirk: if SAMPL_TIME restarted, the block is the next second (or the number
-    of seconds the raw jump implies, for a gap); if it did not, the block continues the current second.
+    block. If the raw value rose by anything else, it is the quirk: if SAMPL_TIME restarted, the block is
+    the next second (or the number of seconds the raw jump implies, for a gap); if it did not, the block
+    continues the current second. A raw value that falls is left alone, so that the time check names it.
     A drop of more than half a day is a midnight roll-over and adds 86400 s. Every repair is reported.
     """
     trig = np.asarray(trig_time, dtype=np.int64)
@@ -58,16 +59,20 @@ def pos_sample_times(
             raw += _CENTI_PER_DAY
             report.midnight_lines.append(int(lines[row]))
         step = raw - int(repaired[b - 1])
+        raw_step = raw - previous_raw
         sampl_restarted = sampl[row] < sampl[row - 1]
         if step > 0 and step % 100 == 0:
             repaired[b] = raw
-        elif sampl_restarted:
-            elapsed = max(1, int(round((raw - previous_raw) / 100.0)))
-            repaired[b] = repaired[b - 1] + 100 * elapsed
+        elif raw_step > 0:
+            # the counter rose, but not by whole seconds from the repaired time: the logger quirk
+            if sampl_restarted:
+                repaired[b] = repaired[b - 1] + 100 * max(1, int(round(raw_step / 100.0)))
+            else:
+                repaired[b] = repaired[b - 1]
             report.quirk_lines.append(int(lines[row]))
         else:
-            repaired[b] = repaired[b - 1]
-            report.quirk_lines.append(int(lines[row]))
+            # TRIG_TIME went backwards: not a quirk; left as logged so the caller reports the line
+            repaired[b] = raw
         previous_raw = raw
     block_of_row = np.repeat(np.arange(len(starts)), np.diff(np.concatenate([starts, [n]])))
     times = repaired[block_of_row] / 100.0 + sampl / 1e6

@@ -14,7 +14,8 @@ from georef.eo import camera_eo_table
 from georef.exposure import ExposureStates
 from georef.frames import C_e_n, geodetic_to_ecef, wrap_pi
 from georef.frames.mounting import lever_arm_ecef
-from georef.frames.rotations import slerp_dcm
+from georef.frames.rotations import attitude_at
+from georef.fusion.solution import NavSolution
 from georef.io.camera import Exposures
 
 ANGLES = ("roll", "pitch", "yaw")
@@ -58,15 +59,16 @@ def sigma_coverage(estimate: pd.DataFrame, errors: pd.DataFrame, k: float = 2.0)
     return out
 
 
-def gnss_interpolation_baseline(exposures: Exposures, gnss: GnssEpochs, C_b_n_rows: np.ndarray,
-                                row_time: np.ndarray, cfg: ProcessingConfig) -> pd.DataFrame:
+def gnss_interpolation_baseline(exposures: Exposures, gnss: GnssEpochs, nav: NavSolution,
+                                cfg: ProcessingConfig) -> pd.DataFrame:
     """The pre-thesis practice, improved by the lever arms: GNSS antenna fixes linearly interpolated in ECEF
-    to the exposure times, moved to the camera through both lever arms with the given attitude."""
+    to the exposure times, moved to the camera through both lever arms with the attitude of ``nav``."""
+    row_time = nav.time
     r_ant = geodetic_to_ecef(np.radians(gnss.lat_deg), np.radians(gnss.lon_deg), gnss.height)
     t = exposures.time
     inside = (t >= max(gnss.time[0], row_time[0])) & (t <= min(gnss.time[-1], row_time[-1]))
     r_at = np.stack([np.interp(t[inside], gnss.time, r_ant[:, k]) for k in range(3)], -1)
-    C_b_n = slerp_dcm(row_time, C_b_n_rows, t[inside])
+    C_b_n = attitude_at(row_time, nav.roll, nav.pitch, nav.yaw, t[inside])
     lat = np.radians(np.interp(t[inside], gnss.time, gnss.lat_deg))
     lon = np.radians(np.interp(t[inside], gnss.time, gnss.lon_deg))
     r_imu = r_at - lever_arm_ecef(lat, lon, C_b_n, cfg.lever_arm_gnss)

@@ -13,8 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from georef.frames import euler_to_dcm
-from georef.frames.rotations import slerp_dcm
+from georef.frames.rotations import attitude_at
 from georef.fusion.solution import NavSolution
 
 
@@ -65,8 +64,5 @@ def interpolate_to_exposures(nav: NavSolution, times: np.ndarray) -> ExposureSta
     v_e[inside] = (1 - w) * nav.v_e[i0] + w * nav.v_e[i1]
     pos_var[inside] = (1 - w) * nav.pos_var_n[i0] + w * nav.pos_var_n[i1]
     att_sigma[inside] = (1 - w) * nav.att_sigma[i0] + w * nav.att_sigma[i1]
-    # SLERP only needs the two bracketing rows of every exposure.
-    needed = np.unique(np.concatenate([i0, i1]))
-    C_rows = euler_to_dcm(nav.roll[needed], nav.pitch[needed], nav.yaw[needed])
-    C_b_n[inside] = slerp_dcm(nav.time[needed], C_rows, ti)
+    C_b_n[inside] = attitude_at(nav.time[rows], nav.roll[rows], nav.pitch[rows], nav.yaw[rows], ti)
     return ExposureStates(times, inside, r_e, v_e, C_b_n, pos_var, att_sigma)

@@ -14,12 +14,12 @@ The conventions are those of ``shared/docs/conventions.md`` and are documented i
 """
 
 from georef.frames.earth import (
+    OMEGA_IE,
     WGS84_A,
     WGS84_B,
     WGS84_E2,
     WGS84_F,
     WGS84_GM,
-    OMEGA_IE,
     C_e_n,
     C_n_e,
     earth_rate_n,
@@ -39,8 +39,8 @@ from georef.frames.rotations import (
     rotvec_to_quat,
     skew,
     slerp_euler,
-    wrap_pi,
     wrap_360,
+    wrap_pi,
 )
 
 __all__ = [

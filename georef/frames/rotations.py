@@ -158,6 +158,20 @@ def slerp_dcm(times: ArrayLike, C: ArrayLike, new_times: ArrayLike) -> Array:
     return slerp(np.asarray(new_times, dtype=float)).as_matrix()
 
 
+def attitude_at(times: ArrayLike, roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike,
+                new_times: ArrayLike) -> Array:
+    """``C_b_n`` (K, 3, 3) at ``new_times`` [s] from ZYX Euler angles [rad] at increasing ``times``, by SLERP.
+
+    Only the samples bracketing a new time are converted to matrices.
+    """
+    times = np.asarray(times, dtype=float)
+    new_times = np.atleast_1d(np.asarray(new_times, dtype=float))
+    upper = np.clip(np.searchsorted(times, new_times, side="right"), 1, len(times) - 1)
+    needed = np.unique(np.concatenate([upper - 1, upper]))
+    C = euler_to_dcm(np.asarray(roll)[needed], np.asarray(pitch)[needed], np.asarray(yaw)[needed])
+    return slerp_dcm(times[needed], C, new_times)
+
+
 def slerp_euler(
     times: ArrayLike, roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike, new_times: ArrayLike
 ) -> tuple[Array, Array, Array]:
@@ -165,4 +179,4 @@ def slerp_euler(
 
     Unlike a linear interpolation of the angles, this is correct across the +-180 deg yaw wrap.
     """
-    return dcm_to_euler(slerp_dcm(times, euler_to_dcm(roll, pitch, yaw), new_times))
+    return dcm_to_euler(attitude_at(times, roll, pitch, yaw, new_times))

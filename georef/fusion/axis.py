@@ -18,9 +18,9 @@ from __future__ import annotations
 import numpy as np
 
 from georef.config import ProcessingConfig
-from georef.frames import C_n_e, ecef_to_geodetic, euler_to_dcm, geodetic_to_ecef, wrap_pi
+from georef.frames import C_n_e, ecef_to_geodetic, geodetic_to_ecef, wrap_pi
 from georef.frames.mounting import lever_arm_ecef
-from georef.frames.rotations import slerp_dcm
+from georef.frames.rotations import attitude_at
 from georef.fusion.axis_kernel import axis_filter
 from georef.fusion.solution import GnssUse, NavSolution, ecef_variances_to_ned, ned_variances_to_ecef
 from georef.fusion.yaw_offset import recover_yaw_offset
@@ -59,7 +59,6 @@ def solve_axis(log: PosLog, cfg: ProcessingConfig) -> NavSolution:
     offset, offset_sigma = yaw_solution.at(t)
     roll, pitch = unit_rpy[:, 0], unit_rpy[:, 1]
     yaw = wrap_pi(unit_rpy[:, 2] + offset)
-    C_b_n = euler_to_dcm(roll, pitch, yaw)
 
     # Level-frame acceleration -> NED (rotate by the offset) -> ECEF at the current position.
     lat_row = np.radians(np.interp(t, gnss.time, gnss.lat_deg))
@@ -72,7 +71,7 @@ def solve_axis(log: PosLog, cfg: ProcessingConfig) -> NavSolution:
     in_span = (gnss.time >= t[0]) & (gnss.time <= t[-1])
     fix_t = gnss.time[in_span]
     lat_f, lon_f = np.radians(gnss.lat_deg[in_span]), np.radians(gnss.lon_deg[in_span])
-    C_b_n_fix = slerp_dcm(t, C_b_n, fix_t)
+    C_b_n_fix = attitude_at(t, roll, pitch, yaw, fix_t)
     r_ant = geodetic_to_ecef(lat_f, lon_f, gnss.height[in_span])
     z_fix = r_ant - lever_arm_ecef(lat_f, lon_f, C_b_n_fix, lever_gnss)
     r_fix = ned_variances_to_ecef(lat_f, lon_f, np.tile(np.square(cfg.gnss_sigma), (len(fix_t), 1)))

@@ -25,15 +25,15 @@ def _rounded(pos: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
-def processing_config_for(flight: SimulatedFlight) -> ProcessingConfig:
+def processing_config_for(flight: SimulatedFlight, crs: str | None = None) -> ProcessingConfig:
     """The processing configuration that matches the simulated installation."""
     cfg = flight.config
     return ProcessingConfig(lever_arm_gnss=cfg.lever_arm_gnss_m, lever_arm_camera=cfg.lever_arm_camera_m,
                             boresight=cfg.boresight_deg, gnss_sigma=cfg.gnss.sigma_neu_m,
-                            gnss_rate_hz=cfg.gnss.rate_hz)
+                            gnss_rate_hz=cfg.gnss.rate_hz, crs=crs)
 
 
-def write_flight(flight: SimulatedFlight, folder: Path | str) -> dict[str, Path]:
+def write_flight(flight: SimulatedFlight, folder: Path | str, crs: str | None = None) -> dict[str, Path]:
     """Write ``POS.txt``, ``Kamera.txt``, ``truth.csv`` and ``flight.toml`` into ``folder``."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -49,5 +49,5 @@ def write_flight(flight: SimulatedFlight, folder: Path | str) -> dict[str, Path]
         flight.truth_frames.to_csv(handle, index=False, float_format="%.10g", lineterminator="\n")
     with atomic_write(paths["flight.toml"]) as handle:
         handle.write("# Processing settings matching the simulated installation (georef simulate).\n")
-        handle.write(config_to_toml(processing_config_for(flight)))
+        handle.write(config_to_toml(processing_config_for(flight, crs)))
     return paths

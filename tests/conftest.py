@@ -1,0 +1,25 @@
+"""Shared fixtures: simulated flights written to temporary folders (deterministic seeds)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from georef.sim.files import processing_config_for, write_flight
+from georef.sim.flight import SimConfig, SimulatedFlight, simulate
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+@pytest.fixture(scope="session")
+def flight_dir(tmp_path_factory: pytest.TempPathFactory) -> tuple[SimulatedFlight, dict[str, Path]]:
+    """A 3-minute seed-like flight (50 Hz, MEMS with vibration, GNSS 1/1/2 m), written to disk."""
+    flight = simulate(SimConfig(seed=1))
+    paths = write_flight(flight, tmp_path_factory.mktemp("flight"))
+    return flight, paths
+
+
+@pytest.fixture(scope="session")
+def flight_config(flight_dir):
+    return processing_config_for(flight_dir[0])
