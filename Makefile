@@ -14,6 +14,7 @@ $(STAMP): pyproject.toml
 
 demo: $(STAMP)
 	$(BIN)/georef process data/POS.txt data/Kamera.txt --config data/flight.toml -o out/eo.csv
+	$(BIN)/georef evaluate out/eo.csv data/truth.csv
 
 test: $(STAMP)
 	$(BIN)/ruff check georef cli tests benchmarks examples

@@ -9,8 +9,6 @@ import pytest
 from georef.sim.files import processing_config_for, write_flight
 from georef.sim.flight import SimConfig, SimulatedFlight, simulate
 
-DATA = Path(__file__).resolve().parents[1] / "data"
-
 
 @pytest.fixture(scope="session")
 def flight_dir(tmp_path_factory: pytest.TempPathFactory) -> tuple[SimulatedFlight, dict[str, Path]]:
