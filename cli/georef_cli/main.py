@@ -143,7 +143,10 @@ def _print_summary(result: Any, output: Path, verbose: bool) -> None:
     table.add_row("GNSS epochs", f"{s['gnss_epochs']} ({s['gnss_used']} used, "
                   f"{len(s['gnss_rejected_lines'])} rejected, {len(gaps)} gaps)")
     if s["gnss_rejected_lines"]:
-        table.add_row("rejected fixes", "POS lines " + ", ".join(map(str, s["gnss_rejected_lines"][:20])))
+        rejected = result.nav.gnss
+        shown = [f"{t:.0f} s (line {line})" for t, line in
+                 zip(rejected.time[rejected.status == 0], rejected.line[rejected.status == 0], strict=True)]
+        table.add_row("rejected fixes", ", ".join(shown[:20]) + (" ..." if len(shown) > 20 else ""))
     for start, end in gaps[:10]:
         table.add_row("GNSS gap", f"{start:.0f} - {end:.0f} s ({end - start:.0f} s)")
     if s["yaw_offset_deg"] is not None:
@@ -156,6 +159,12 @@ def _print_summary(result: Any, output: Path, verbose: bool) -> None:
         table.add_row("median sigma", f"horizontal {np.median(horizontal):.2f} m, vertical "
                       f"{np.median(valid['sigma_u']):.2f} m, yaw {np.median(valid['sigma_yaw']):.2f} deg")
     out.print(table)
+    outside = result.table["flag"].astype(str).str.contains("outside navigation span")
+    if outside.any():
+        frames = result.table.loc[outside, "frame"].astype(str).tolist()
+        console.print(f"[yellow]warning:[/] {len(frames)} frame(s) outside the navigation span have rows with empty "
+                      f"values and a flag: {', '.join(frames[:10])}{' ...' if len(frames) > 10 else ''}",
+                      highlight=False)
     notices = result.notices
     if notices:
         shown = notices if verbose else notices[:5]
