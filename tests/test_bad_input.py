@@ -35,6 +35,15 @@ def _lines(path: Path) -> list[str]:
     return path.read_text().splitlines(keepends=True)
 
 
+def _set_cell(path: Path, index: int, column: int, text: str) -> None:
+    """Overwrite one tab-separated cell (0-based line index, 0-based column) of a file."""
+    lines = _lines(path)
+    cells = lines[index].rstrip("\n").split("\t")
+    cells[column] = text
+    lines[index] = "\t".join(cells) + "\n"
+    path.write_text("".join(lines))
+
+
 def _cli(files: dict[str, Path], *extra: str):
     result = RUNNER.invoke(app, ["process", str(files["POS.txt"]), str(files["Kamera.txt"]), "--config",
                                  str(files["flight.toml"]), "-o", str(files["POS.txt"].parent / "eo.csv"),
@@ -56,11 +65,7 @@ def test_missing_column(files, flight_config):
 
 
 def test_non_numeric_cell(files, flight_config):
-    lines = _lines(files["POS.txt"])
-    cells = lines[500].split("\t")
-    cells[4] = "1.2.3"  # IACC_X
-    lines[500] = "\t".join(cells)
-    files["POS.txt"].write_text("".join(lines))
+    _set_cell(files["POS.txt"], 500, 4, "1.2.3")  # IACC_X
     with pytest.raises(InputError) as info:
         process(files["POS.txt"], files["Kamera.txt"], flight_config)
     assert (info.value.line, info.value.column) == (501, "IACC_X")
@@ -70,11 +75,7 @@ def test_non_numeric_cell(files, flight_config):
 
 
 def test_non_numeric_hex_cell(files, flight_config):
-    lines = _lines(files["POS.txt"])
-    cells = lines[42].split("\t")
-    cells[0] = "G7"  # CNT[HEX]
-    lines[42] = "\t".join(cells)
-    files["POS.txt"].write_text("".join(lines))
+    _set_cell(files["POS.txt"], 42, 0, "G7")  # CNT[HEX]
     with pytest.raises(InputError) as info:
         process(files["POS.txt"], files["Kamera.txt"], flight_config)
     assert (info.value.line, info.value.column) == (43, "CNT[HEX]")
@@ -168,11 +169,7 @@ def test_camera_times_outside_the_pos_span_get_flagged_rows(files, flight_config
 
 
 def test_camera_milliseconds_out_of_range(files, flight_config):
-    lines = _lines(files["Kamera.txt"])
-    cells = lines[10].rstrip("\n").split("\t")
-    cells[2] = "1200"
-    lines[10] = "\t".join(cells) + "\n"
-    files["Kamera.txt"].write_text("".join(lines))
+    _set_cell(files["Kamera.txt"], 10, 2, "1200")
     with pytest.raises(InputError) as info:
         process(files["POS.txt"], files["Kamera.txt"], flight_config)
     assert (info.value.line, info.value.column) == (11, "Milliseconds")
@@ -188,11 +185,7 @@ def test_duplicate_frame_numbers_are_kept_and_flagged(files, flight_config):
 
 
 def test_empty_cell_in_required_column(files, flight_config):
-    lines = _lines(files["POS.txt"])
-    cells = lines[700].split("\t")
-    cells[15] = ""  # YAW
-    lines[700] = "\t".join(cells)
-    files["POS.txt"].write_text("".join(lines))
+    _set_cell(files["POS.txt"], 700, 15, "")  # YAW
     with pytest.raises(InputError) as info:
         process(files["POS.txt"], files["Kamera.txt"], flight_config)
     assert (info.value.line, info.value.column) == (701, "YAW")
