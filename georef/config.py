@@ -10,16 +10,17 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+from georef.imu_errors import ImuErrorModel, imu_preset
 from georef.io.errors import InputError
 
-METHODS = ("axis",)
+METHODS = ("rts", "ekf", "axis")
 
 
 @dataclass(frozen=True)
 class ProcessingConfig:
     """Everything ``georef process`` needs besides the input files."""
 
-    method: str = "axis"
+    method: str = "rts"
     #: body-frame lever arm IMU -> GNSS antenna [m], x forward, y right, z down
     lever_arm_gnss: tuple[float, float, float] = (0.0, 0.0, 0.0)
     #: body-frame lever arm IMU -> camera perspective centre [m]
@@ -50,6 +51,13 @@ class ProcessingConfig:
     axis_bias_time: float = 60.0
     #: innovation gate: chi-square threshold of a 3-D GNSS position innovation (16.27 = 99.9 %)
     gate_chi2: float = 16.27
+    #: full-state filters: IMU error preset (see georef.imu_errors) and datasheet overrides
+    imu_preset: str = "mems-ivru"
+    imu_model: dict[str, float] = field(default_factory=dict)
+    #: raise white-noise densities to what the data show (vibration) when larger than the datasheet's
+    imu_noise_from_data: bool = False
+    #: covariance propagation rate of the full-state filters [Hz]
+    covariance_rate: float = 10.0
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -59,8 +67,14 @@ class ProcessingConfig:
             if len(value) != 3:
                 raise ValueError(f"{name} needs three numbers, got {value!r}")
             object.__setattr__(self, name, tuple(float(v) for v in value))
+        if self.covariance_rate <= 0:
+            raise ValueError(f"covariance_rate must be positive Hz, got {self.covariance_rate}")
         if min(self.gnss_sigma) <= 0:
             raise ValueError(f"gnss_sigma must be positive metres, got {self.gnss_sigma}")
+
+    def imu_error_model(self) -> ImuErrorModel:
+        """The datasheet error model: the preset with any ``[imu]`` overrides."""
+        return replace(imu_preset(self.imu_preset), **self.imu_model)
 
     def updated(self, **changes: Any) -> ProcessingConfig:
         """A copy with the given fields changed (``None`` values are ignored)."""
@@ -78,6 +92,7 @@ _SECTIONS = {
     "unit": {"unit_level_sigma", "unit_yaw_sigma"},
     "axis": {"axis_accel_sigma", "axis_bias_sigma", "axis_bias_time"},
     "gnss_gate": {"gate_chi2"},
+    "ins": {"imu_preset", "imu_noise_from_data", "covariance_rate"},
 }
 
 
@@ -97,9 +112,16 @@ def load_config(path: Path | str, base: ProcessingConfig | None = None) -> Proce
         if section == "pos_columns":
             values["pos_columns"] = {str(k): str(v) for k, v in content.items()}
             continue
+        if section == "imu":
+            known = {f.name for f in fields(ImuErrorModel)}
+            unknown = [k for k in content if k not in known]
+            if unknown:
+                raise InputError(path, None, f"imu.{unknown[0]}", f"unknown key; [imu] takes {', '.join(sorted(known))}")
+            values["imu_model"] = {str(k): float(v) for k, v in content.items()}
+            continue
         if section not in _SECTIONS or not isinstance(content, dict):
             raise InputError(path, None, section, f"unknown section [{section}]; known: "
-                             f"{', '.join([*_SECTIONS, 'pos_columns'])}")
+                             f"{', '.join([*_SECTIONS, 'pos_columns', 'imu'])}")
         for key, value in content.items():
             if key not in _SECTIONS[section] or key not in known_fields:
                 raise InputError(path, None, f"{section}.{key}", f"unknown key; [{section}] takes "
@@ -119,6 +141,8 @@ def config_to_toml(cfg: ProcessingConfig) -> str:
             return "[" + ", ".join(f"{v:g}" for v in value) + "]"
         if isinstance(value, str):
             return f'"{value}"'
+        if isinstance(value, bool):
+            return "true" if value else "false"
         return f"{value:g}" if isinstance(value, float) else str(value)
 
     out = []
@@ -128,4 +152,6 @@ def config_to_toml(cfg: ProcessingConfig) -> str:
             out.append(f"[{section}]\n" + "\n".join(rows))
     if cfg.pos_columns:
         out.append("[pos_columns]\n" + "\n".join(f'{k} = "{v}"' for k, v in cfg.pos_columns.items()))
+    if cfg.imu_model:
+        out.append("[imu]\n" + "\n".join(f"{k} = {v:g}" for k, v in cfg.imu_model.items()))
     return "\n\n".join(out) + "\n"

@@ -17,6 +17,7 @@ from georef.exposure import ExposureStates
 from georef.frames import C_e_n, dcm_to_euler, ecef_to_geodetic, skew, wrap_360
 from georef.frames.mapping import MapProjection
 from georef.frames.mounting import camera_attitude, lever_arm_ecef
+from georef.frames.rotations import euler_error_jacobian
 from georef.io.camera import Exposures
 
 EO_COLUMNS = ["frame", "time", "lat", "lon", "height", "roll", "pitch", "yaw", "sigma_n", "sigma_e", "sigma_u",
@@ -60,11 +61,19 @@ def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpoc
         C_c_n = camera_attitude(C_b_n, np.radians(cfg.boresight))
         roll, pitch, yaw = dcm_to_euler(C_c_n)
         # Position covariance at the camera: IMU position plus the lever arm turned by attitude errors,
-        # d(C_b_n l) = -[(C_b_n l) x] d_theta (small NED tilt errors ~ roll, pitch, yaw errors).
+        # d(C_b_n l) = -[(C_b_n l) x] phi for a small NED rotation phi.
         lever_n = C_b_n @ lever_cam
         S = skew(lever_n)
-        att_var = states.att_sigma[inside] ** 2
-        lever_var = np.einsum("nij,nj->ni", S**2, att_var)
+        if states.att_cov_n is not None:
+            att_cov = states.att_cov_n[inside]
+            lever_var = np.einsum("nij,njk,nik->ni", S, att_cov, S)
+            J = euler_error_jacobian(roll, pitch, yaw)
+            euler_sigma = np.sqrt(np.einsum("nij,njk,nik->ni", J, att_cov, J))
+        else:
+            # Euler sigmas taken as NED tilt sigmas (small roll and pitch)
+            att_var = states.att_sigma[inside] ** 2
+            lever_var = np.einsum("nij,nj->ni", S**2, att_var)
+            euler_sigma = states.att_sigma[inside]
         pos_sigma = np.sqrt(states.pos_var_n[inside] + lever_var)
         v_n = np.einsum("nij,nj->ni", C_e_n(lat_i, lon_i), states.v_e[inside])
         track = np.degrees(np.arctan2(v_n[:, 1], v_n[:, 0]))
@@ -73,9 +82,9 @@ def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpoc
             "lat": np.degrees(lat), "lon": np.degrees(lon), "height": height,
             "roll": np.degrees(roll), "pitch": np.degrees(pitch), "yaw": wrap_360(yaw_deg),
             "sigma_n": pos_sigma[:, 0], "sigma_e": pos_sigma[:, 1], "sigma_u": pos_sigma[:, 2],
-            "sigma_roll": np.degrees(states.att_sigma[inside, 0]),
-            "sigma_pitch": np.degrees(states.att_sigma[inside, 1]),
-            "sigma_yaw": np.degrees(states.att_sigma[inside, 2]),
+            "sigma_roll": np.degrees(euler_sigma[:, 0]),
+            "sigma_pitch": np.degrees(euler_sigma[:, 1]),
+            "sigma_yaw": np.degrees(euler_sigma[:, 2]),
             "track": wrap_360(track), "yaw_minus_track": (yaw_deg - track + 180.0) % 360.0 - 180.0,
         }
         for name, value in values.items():

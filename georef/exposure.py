@@ -28,6 +28,7 @@ class ExposureStates:
     C_b_n: np.ndarray
     pos_var_n: np.ndarray
     att_sigma: np.ndarray
+    att_cov_n: np.ndarray | None = None
 
 
 def hermite(t: np.ndarray, t0: np.ndarray, t1: np.ndarray, p0: np.ndarray, p1: np.ndarray,
@@ -52,8 +53,9 @@ def interpolate_to_exposures(nav: NavSolution, times: np.ndarray) -> ExposureSta
     C_b_n = np.full((k, 3, 3), np.nan)
     pos_var = np.full((k, 3), np.nan)
     att_sigma = np.full((k, 3), np.nan)
+    att_cov = None if nav.att_cov_n is None else np.full((k, 3, 3), np.nan)
     if len(rows) < 2:
-        return ExposureStates(times, np.zeros(k, bool), r_e, v_e, C_b_n, pos_var, att_sigma)
+        return ExposureStates(times, np.zeros(k, bool), r_e, v_e, C_b_n, pos_var, att_sigma, att_cov)
     t_valid = nav.time[rows]
     inside = (times >= t_valid[0]) & (times <= t_valid[-1])
     ti = times[inside]
@@ -64,5 +66,7 @@ def interpolate_to_exposures(nav: NavSolution, times: np.ndarray) -> ExposureSta
     v_e[inside] = (1 - w) * nav.v_e[i0] + w * nav.v_e[i1]
     pos_var[inside] = (1 - w) * nav.pos_var_n[i0] + w * nav.pos_var_n[i1]
     att_sigma[inside] = (1 - w) * nav.att_sigma[i0] + w * nav.att_sigma[i1]
+    if att_cov is not None:
+        att_cov[inside] = (1 - w)[:, :, None] * nav.att_cov_n[i0] + w[:, :, None] * nav.att_cov_n[i1]
     C_b_n[inside] = attitude_at(nav.time[rows], nav.roll[rows], nav.pitch[rows], nav.yaw[rows], ti)
-    return ExposureStates(times, inside, r_e, v_e, C_b_n, pos_var, att_sigma)
+    return ExposureStates(times, inside, r_e, v_e, C_b_n, pos_var, att_sigma, att_cov)

@@ -19,7 +19,7 @@ from georef.align import to_reference_day
 from georef.config import ProcessingConfig
 from georef.eo import FLAG_OUTSIDE, camera_eo_table
 from georef.exposure import interpolate_to_exposures
-from georef.fusion import axis
+from georef.fusion import axis, ins
 from georef.fusion.solution import NavSolution
 from georef.io.camera import Exposures, read_camera_log, read_kamera
 from georef.io.errors import InputNotice
@@ -27,6 +27,8 @@ from georef.io.pos import PosLog, read_pos
 
 SOLVERS: dict[str, tuple[Callable[[PosLog, ProcessingConfig], NavSolution], tuple[str, ...]]] = {
     "axis": (axis.solve_axis, axis.REQUIRED_ROLES),
+    "ekf": (ins.solve_ekf, ins.REQUIRED_ROLES),
+    "rts": (ins.solve_rts, ins.REQUIRED_ROLES),
 }
 
 Progress = Callable[[str], None]

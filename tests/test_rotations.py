@@ -110,3 +110,20 @@ def test_gimbal_lock_is_finite(pitch):
     roll, p, yaw = dcm_to_euler(euler_to_dcm(0.3, pitch, 0.2))
     assert np.isfinite([roll, p, yaw]).all()
     assert p == pytest.approx(pitch)
+
+
+def test_euler_error_jacobian_by_finite_differences():
+    from georef.frames.rotations import euler_error_jacobian
+
+    for r, p, y in [(0.1, -0.2, 2.5), (-0.4, 0.3, -3.0), (0.0, 0.0, 0.0)]:
+        J = euler_error_jacobian(r, p, y)
+        C = euler_to_dcm(r, p, y)
+        step = 1e-7
+        for k in range(3):
+            phi = np.zeros(3)
+            phi[k] = step
+            rotated = Rotation.from_rotvec(phi).as_matrix() @ C
+            plus = np.array(dcm_to_euler(rotated))
+            rotated = Rotation.from_rotvec(-phi).as_matrix() @ C
+            minus = np.array(dcm_to_euler(rotated))
+            np.testing.assert_allclose(wrap_pi(plus - minus) / (2 * step), J[:, k], atol=1e-6)

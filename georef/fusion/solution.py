@@ -37,7 +37,8 @@ class NavSolution:
     ``r_e`` ECEF position of the IMU [m], ``v_e`` ECEF velocity [m/s], ``lat``/``lon`` [rad] and
     ``height`` [m] of the IMU, body attitude ``roll, pitch, yaw`` [rad] (ZYX, body-to-NED),
     ``pos_var_n`` NED position variances [m^2] (N, 3), ``att_sigma`` roll/pitch/yaw 1-sigma [rad] (N, 3),
-    ``valid`` rows that carry a solution.
+    ``valid`` rows that carry a solution, and, from the full-state filters, ``att_cov_n`` the covariance
+    (N, 3, 3) [rad^2] of the small NED rotation ``phi`` with ``C_est = (I - [phi x]) C_true``.
     """
 
     method: str
@@ -55,6 +56,7 @@ class NavSolution:
     valid: np.ndarray
     gnss: GnssUse
     info: dict = field(default_factory=dict)
+    att_cov_n: np.ndarray | None = None
 
     @property
     def v_n(self) -> np.ndarray:

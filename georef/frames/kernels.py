@@ -1,0 +1,106 @@
+"""Compiled single-sample forms of georef's conventions, for numba recursions.
+
+These are the same equations as :mod:`georef.frames.earth` and :mod:`georef.frames.rotations` (which are
+vectorised over arrays for module boundaries), written per sample so compiled loops can call them.
+``tests/test_frames_kernels.py`` checks that both forms agree to rounding error; nothing outside
+``georef/frames`` writes these formulas again.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from georef.frames.earth import GAMMA_E, OMEGA_IE, SOMIGLIANA_K, WGS84_A, WGS84_B, WGS84_E2, WGS84_F, WGS84_GM
+
+_M_GRAV = OMEGA_IE**2 * WGS84_A**2 * WGS84_B / WGS84_GM
+
+
+@njit(cache=True)
+def radii(lat: float) -> tuple[float, float]:
+    """Meridian and prime-vertical radii of curvature M, N [m] at latitude [rad]."""
+    s = math.sin(lat)
+    w2 = 1.0 - WGS84_E2 * s * s
+    return WGS84_A * (1.0 - WGS84_E2) / w2**1.5, WGS84_A / math.sqrt(w2)
+
+
+@njit(cache=True)
+def gravity(lat: float, height: float) -> float:
+    """Normal gravity [m/s^2] (Somigliana + second-order height term), down in NED."""
+    s2 = math.sin(lat) ** 2
+    g0 = GAMMA_E * (1.0 + SOMIGLIANA_K * s2) / math.sqrt(1.0 - WGS84_E2 * s2)
+    return g0 * (1.0 - 2.0 / WGS84_A * (1.0 + WGS84_F + _M_GRAV - 2.0 * WGS84_F * s2) * height
+                 + 3.0 * height * height / WGS84_A**2)
+
+
+@njit(cache=True)
+def earth_rate(lat: float, out: np.ndarray) -> None:
+    """omega_ie_n [rad/s] into ``out`` (3,)."""
+    out[0] = OMEGA_IE * math.cos(lat)
+    out[1] = 0.0
+    out[2] = -OMEGA_IE * math.sin(lat)
+
+
+@njit(cache=True)
+def transport_rate(lat: float, height: float, v: np.ndarray, out: np.ndarray) -> None:
+    """omega_en_n [rad/s] into ``out`` (3,) for NED velocity ``v`` [m/s]."""
+    M, N = radii(lat)
+    out[0] = v[1] / (N + height)
+    out[1] = -v[0] / (M + height)
+    out[2] = -v[1] * math.tan(lat) / (N + height)
+
+
+@njit(cache=True)
+def quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton product p ⊗ q of scalar-first quaternions."""
+    r = np.empty(4)
+    r[0] = p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3]
+    r[1] = p[0] * q[1] + p[1] * q[0] + p[2] * q[3] - p[3] * q[2]
+    r[2] = p[0] * q[2] - p[1] * q[3] + p[2] * q[0] + p[3] * q[1]
+    r[3] = p[0] * q[3] + p[1] * q[2] - p[2] * q[1] + p[3] * q[0]
+    return r
+
+
+@njit(cache=True)
+def quat_from_rotvec(v: np.ndarray) -> np.ndarray:
+    """Rotation vector [rad] to a scalar-first quaternion ``[cos(a/2), sin(a/2) u]``."""
+    a = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    q = np.empty(4)
+    q[0] = math.cos(0.5 * a)
+    f = math.sin(0.5 * a) / a if a > 1e-8 else 0.5 - a * a / 48.0
+    q[1] = f * v[0]
+    q[2] = f * v[1]
+    q[3] = f * v[2]
+    return q
+
+
+@njit(cache=True)
+def quat_to_dcm(q: np.ndarray, C: np.ndarray) -> None:
+    """Unit quaternion to the rotation matrix it describes (q_b_n -> C_b_n), written into ``C``."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    C[0, 0] = 1 - 2 * (y * y + z * z)
+    C[0, 1] = 2 * (x * y - w * z)
+    C[0, 2] = 2 * (x * z + w * y)
+    C[1, 0] = 2 * (x * y + w * z)
+    C[1, 1] = 1 - 2 * (x * x + z * z)
+    C[1, 2] = 2 * (y * z - w * x)
+    C[2, 0] = 2 * (x * z - w * y)
+    C[2, 1] = 2 * (y * z + w * x)
+    C[2, 2] = 1 - 2 * (x * x + y * y)
+
+
+@njit(cache=True)
+def quat_normalise(q: np.ndarray) -> None:
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    for i in range(4):
+        q[i] /= n
+
+
+@njit(cache=True)
+def cross(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """out = a x b (3-vectors)."""
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]

@@ -1,0 +1,117 @@
+"""Strapdown INS mechanisation in NED with geodetic position (compiled).
+
+Nominal state ``x`` (16,): ``[lat, lon, h, v_N, v_E, v_D, q_w, q_x, q_y, q_z, b_g(3), b_a(3)]`` —
+radians, metres, m/s, the body-to-NED quaternion (Hamilton, scalar first), gyro bias [rad/s] and
+accelerometer bias [m/s^2].
+
+One step from t_{k-1} to t_k uses the bias-corrected increments ``dtheta`` [rad] and ``dvel`` [m/s] of
+the interval and those of the previous interval (for the two-sample corrections):
+
+* attitude: body rotation vector ``phi = dθ_k + (1/12) dθ_{k-1} x dθ_k`` (coning),
+  navigation-frame rotation ``zeta = (ω_ie + ω_en) dt``; ``q_k = q(-zeta) ⊗ q_{k-1} ⊗ q(phi)``;
+* velocity: ``dv_b = dv_k + ½ dθ_k x dv_k + (1/12)(dθ_{k-1} x dv_k + dv_{k-1} x dθ_k)`` (rotation and
+  sculling), ``v_k = v_{k-1} + (I - ½[zeta x]) C_b_n dv_b + (g_n - (2ω_ie + ω_en) x v) dt``
+  with normal gravity ``g_n = [0, 0, g(lat, h)]``;
+* position: trapezoidal velocity, ``h -= v_D dt``, ``lat += v_N dt/(M+h)``, ``lon += v_E dt/((N+h) cos lat)``.
+
+After Savage (1998) "Strapdown inertial navigation integration algorithm design" and Shin (2005); the
+same structure as KF-GINS.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from georef.frames.kernels import cross, earth_rate, gravity, quat_from_rotvec, quat_mul, quat_normalise, \
+    quat_to_dcm, radii, transport_rate
+
+
+@njit(cache=True)
+def increments(gyro_prev: np.ndarray, gyro: np.ndarray, accel_prev: np.ndarray, accel: np.ndarray, dt: float,
+               x: np.ndarray, dtheta: np.ndarray, dvel: np.ndarray) -> None:
+    """Bias-corrected angle and velocity increments of an interval from point samples (trapezoid)."""
+    for i in range(3):
+        dtheta[i] = (0.5 * (gyro_prev[i] + gyro[i]) - x[10 + i]) * dt
+        dvel[i] = (0.5 * (accel_prev[i] + accel[i]) - x[13 + i]) * dt
+
+
+@njit(cache=True)
+def mechanise(x: np.ndarray, dtheta: np.ndarray, dvel: np.ndarray, dtheta_prev: np.ndarray,
+              dvel_prev: np.ndarray, dt: float, C: np.ndarray) -> None:
+    """Advance the nominal state ``x`` in place by one IMU interval; ``C`` receives the new C_b_n."""
+    lat, lon, h = x[0], x[1], x[2]
+    v = x[3:6].copy()
+    w_ie = np.empty(3)
+    w_en = np.empty(3)
+    earth_rate(lat, w_ie)
+    transport_rate(lat, h, v, w_en)
+    zeta = (w_ie + w_en) * dt
+
+    # velocity
+    t1 = np.empty(3)
+    t2 = np.empty(3)
+    t3 = np.empty(3)
+    cross(dtheta, dvel, t1)
+    cross(dtheta_prev, dvel, t2)
+    cross(dvel_prev, dtheta, t3)
+    dv_b = dvel + 0.5 * t1 + (t2 + t3) / 12.0
+    quat_to_dcm(x[6:10], C)
+    dv_n = C @ dv_b
+    cross(zeta, dv_n, t1)
+    dv_n = dv_n - 0.5 * t1
+    coriolis = np.empty(3)
+    cross(2.0 * w_ie + w_en, v, coriolis)
+    v_new = v + dv_n - coriolis * dt
+    v_new[2] += gravity(lat, h) * dt
+
+    # position (trapezoidal velocity)
+    M, N = radii(lat)
+    h_new = h - 0.5 * (v[2] + v_new[2]) * dt
+    h_mid = 0.5 * (h + h_new)
+    lat_new = lat + 0.5 * (v[0] + v_new[0]) * dt / (M + h_mid)
+    lat_mid = 0.5 * (lat + lat_new)
+    _, N_mid = radii(lat_mid)
+    lon_new = lon + 0.5 * (v[1] + v_new[1]) * dt / ((N_mid + h_mid) * math.cos(lat_mid))
+
+    # attitude: body coning and the rotation of the navigation frame at the interval's midpoint
+    cross(dtheta_prev, dtheta, t1)
+    q_body = quat_from_rotvec(dtheta + t1 / 12.0)
+    v_mid = 0.5 * (v + v_new)
+    earth_rate(lat_mid, w_ie)
+    transport_rate(lat_mid, h_mid, v_mid, w_en)
+    q_nav = quat_from_rotvec(-(w_ie + w_en) * dt)
+    q_new = quat_mul(quat_mul(q_nav, x[6:10]), q_body)
+    quat_normalise(q_new)
+
+    x[0], x[1], x[2] = lat_new, lon_new, h_new
+    x[3:6] = v_new
+    x[6:10] = q_new
+    quat_to_dcm(q_new, C)
+
+
+@njit(cache=True)
+def run_free_inertial(x0: np.ndarray, t: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> np.ndarray:
+    """Free-running INS from ``x0`` over IMU samples (rates [rad/s], specific force [m/s^2]); states (N, 16)."""
+    n = t.shape[0]
+    out = np.empty((n, 16))
+    x = x0.copy()
+    out[0] = x
+    dtheta = np.zeros(3)
+    dvel = np.zeros(3)
+    dtheta_prev = np.zeros(3)
+    dvel_prev = np.zeros(3)
+    C = np.empty((3, 3))
+    for k in range(1, n):
+        dt = t[k] - t[k - 1]
+        increments(gyro[k - 1], gyro[k], accel[k - 1], accel[k], dt, x, dtheta, dvel)
+        if k == 1:
+            dtheta_prev[:] = dtheta
+            dvel_prev[:] = dvel
+        mechanise(x, dtheta, dvel, dtheta_prev, dvel_prev, dt, C)
+        dtheta_prev[:] = dtheta
+        dvel_prev[:] = dvel
+        out[k] = x
+    return out

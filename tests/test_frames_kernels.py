@@ -1,0 +1,46 @@
+"""The compiled single-sample forms in georef.frames.kernels equal the vectorised forms."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from georef.frames import (
+    earth_rate_n,
+    normal_gravity,
+    quat_multiply,
+    quat_to_dcm,
+    radii_of_curvature,
+    rotvec_to_quat,
+    transport_rate_n,
+)
+from georef.frames import kernels
+
+RNG = np.random.default_rng(8)
+
+
+def test_earth_model_forms_agree():
+    for lat, h in zip(RNG.uniform(-1.5, 1.5, 50), RNG.uniform(-5000, 50000, 50), strict=True):
+        M, N = kernels.radii(lat)
+        np.testing.assert_allclose((M, N), radii_of_curvature(lat), rtol=1e-15)
+        assert abs(kernels.gravity(lat, h) - normal_gravity(lat, h)) < 1e-14
+        out = np.empty(3)
+        kernels.earth_rate(lat, out)
+        np.testing.assert_allclose(out, earth_rate_n(lat), atol=1e-20)
+        v = RNG.normal(0, 50, 3)
+        kernels.transport_rate(lat, h, v, out)
+        np.testing.assert_allclose(out, transport_rate_n(lat, h, v), rtol=1e-13, atol=1e-20)
+
+
+def test_rotation_forms_agree():
+    for _ in range(50):
+        p, q = RNG.normal(size=4), RNG.normal(size=4)
+        np.testing.assert_allclose(kernels.quat_mul(p, q), quat_multiply(p, q), atol=1e-15)
+        v = RNG.normal(size=3) * RNG.choice([1e-10, 1e-3, 1.0])
+        np.testing.assert_allclose(kernels.quat_from_rotvec(v), rotvec_to_quat(v), atol=1e-15)
+        u = q / np.linalg.norm(q)
+        C = np.empty((3, 3))
+        kernels.quat_to_dcm(u, C)
+        np.testing.assert_allclose(C, quat_to_dcm(u), atol=1e-15)
+        out = np.empty(3)
+        kernels.cross(v, p[:3], out)
+        np.testing.assert_allclose(out, np.cross(v, p[:3]), atol=1e-15)
