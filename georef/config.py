@@ -44,6 +44,13 @@ class ProcessingConfig:
     #: 1-sigma accuracy of the unit's own roll/pitch [deg] and of its yaw relative to its origin [deg]
     unit_level_sigma: float = 0.1
     unit_yaw_sigma: float = 0.05
+    #: correlation time of the unit's roll/pitch error [s]; white noise of its angles [deg]
+    unit_level_time: float = 60.0
+    unit_angle_noise: float = 0.02
+    #: how fast the drift of the unit's yaw origin may change [deg/min per sqrt(min)]
+    unit_drift_change: float = 0.05
+    #: full-state filters: fuse the unit's own roll/pitch/yaw (when POS.txt has them) with modelled errors
+    unit_aiding: bool = True
     #: per-axis filter: white acceleration noise per sample [m/s^2] (None = estimated from the data)
     axis_accel_sigma: float | None = None
     #: per-axis filter: slowly varying acceleration error (bias, yaw-offset error) [m/s^2] and its time [s]
@@ -89,7 +96,8 @@ _SECTIONS = {
     "camera": {"camera_utc_offset"},
     "output": {"crs"},
     "yaw_offset": {"yaw_window", "yaw_step", "yaw_bandwidth"},
-    "unit": {"unit_level_sigma", "unit_yaw_sigma"},
+    "unit": {"unit_level_sigma", "unit_yaw_sigma", "unit_level_time", "unit_angle_noise", "unit_drift_change",
+             "unit_aiding"},
     "axis": {"axis_accel_sigma", "axis_bias_sigma", "axis_bias_time"},
     "gnss_gate": {"gate_chi2"},
     "ins": {"imu_preset", "imu_noise_from_data", "covariance_rate"},

@@ -44,3 +44,13 @@ def test_rotation_forms_agree():
         out = np.empty(3)
         kernels.cross(v, p[:3], out)
         np.testing.assert_allclose(out, np.cross(v, p[:3]), atol=1e-15)
+
+
+def test_euler_forms_agree():
+    from georef.frames import dcm_to_euler, euler_to_dcm
+    from georef.frames.rotations import euler_error_jacobian
+
+    for r, p, y in RNG.uniform(-1.2, 1.2, (20, 3)):
+        C = euler_to_dcm(r, p, 2.5 * y)
+        np.testing.assert_allclose(kernels.dcm_to_euler(C), dcm_to_euler(C), atol=1e-14)
+        np.testing.assert_allclose(kernels.euler_error_jacobian(C), euler_error_jacobian(r, p, 2.5 * y), atol=1e-12)

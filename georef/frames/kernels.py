@@ -104,3 +104,20 @@ def cross(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
     out[0] = a[1] * b[2] - a[2] * b[1]
     out[1] = a[2] * b[0] - a[0] * b[2]
     out[2] = a[0] * b[1] - a[1] * b[0]
+
+
+@njit(cache=True)
+def dcm_to_euler(C: np.ndarray) -> tuple[float, float, float]:
+    """ZYX Euler angles (roll, pitch, yaw) [rad] of C_b_n; yaw in (-pi, pi]."""
+    pitch = -math.asin(min(1.0, max(-1.0, C[2, 0])))
+    return math.atan2(C[2, 1], C[2, 2]), pitch, math.atan2(C[1, 0], C[0, 0])
+
+
+@njit(cache=True)
+def euler_error_jacobian(C: np.ndarray) -> np.ndarray:
+    """d(roll, pitch, yaw)/d(phi) = E C^T for a small NED rotation phi, C = C_b_n (3x3)."""
+    roll, pitch, _ = dcm_to_euler(C)
+    sr, cr = math.sin(roll), math.cos(roll)
+    tp, cp = math.tan(pitch), math.cos(pitch)
+    E = np.array([[1.0, sr * tp, cr * tp], [0.0, cr, -sr], [0.0, sr / cp, cr / cp]])
+    return E @ C.T

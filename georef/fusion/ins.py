@@ -59,8 +59,13 @@ class NoiseModel:
     sigma_ba0: float  # m/s^2, initial accelerometer-bias sigma
     from_data: bool
 
-    def as_array(self) -> np.ndarray:
-        return np.array([self.q_vel, self.q_att, self.q_bg, self.q_ba, 0.0, 0.0])
+    def as_array(self, cfg: ProcessingConfig) -> np.ndarray:
+        """The kernel's noise vector, with the unit-attitude error model of ``cfg``."""
+        level = np.radians(cfg.unit_level_sigma)
+        drift_change = np.radians(cfg.unit_drift_change) / 60.0 / np.sqrt(60.0)  # rad/s per sqrt(s)
+        return np.array([self.q_vel, self.q_att, self.q_bg, self.q_ba, 0.0, 0.0,
+                         2.0 * level**2 / cfg.unit_level_time, 1.0 / cfg.unit_level_time, drift_change**2,
+                         np.radians(cfg.unit_angle_noise) ** 2, np.radians(cfg.unit_angle_noise) ** 2])
 
 
 def noise_model(inputs: InsInputs, cfg: ProcessingConfig) -> NoiseModel:
@@ -124,6 +129,7 @@ def _initial_state(inputs: InsInputs, cfg: ProcessingConfig) -> tuple[int, int, 
         roll, pitch = np.arctan2(-f[1], -f[2]), np.arctan2(f[0], np.hypot(f[1], f[2]))
         level_sigma = np.radians(3.0)
     yaw, yaw_sigma = None, None
+    drift, drift_sigma = 0.0, np.radians(2.0) / 60.0
     if inputs.unit_rpy is not None and inputs.iacc is not None:
         try:
             solution = recover_yaw_offset(gnss.time, gnss.lat_deg, gnss.lon_deg, gnss.height, t, inputs.iacc,
@@ -131,7 +137,8 @@ def _initial_state(inputs: InsInputs, cfg: ProcessingConfig) -> tuple[int, int, 
                                           window=cfg.yaw_window, step=cfg.yaw_step, bandwidth=cfg.yaw_bandwidth)
             offset, offset_sigma = solution.at(np.array([t[start_row]]))
             yaw = float(wrap_pi(inputs.unit_rpy[start_row, 2] + offset[0]))
-            yaw_sigma = max(float(offset_sigma[0]) * 3.0, np.radians(1.0))
+            yaw_sigma = max(float(offset_sigma[0]), np.radians(0.1))
+            drift, drift_sigma = solution.drift, max(solution.drift_sigma, np.radians(0.05) / 60.0)
             info["yaw_offset"] = solution
             info["heading_source"] = "unit yaw + recovered offset"
         except ValueError:
@@ -146,19 +153,27 @@ def _initial_state(inputs: InsInputs, cfg: ProcessingConfig) -> tuple[int, int, 
     C_b_n = euler_to_dcm(roll, pitch, yaw)
     M, N = radii(lat[1])
     lever_n = C_b_n @ np.asarray(cfg.lever_arm_gnss)
-    x0 = np.zeros(16)
+    x0 = np.zeros(20)
     pos_n = v_n * lag - lever_n  # IMU at the start row, relative to the antenna fix
     x0[0] = lat[1] + pos_n[0] / (M + gnss.height[k])
     x0[1] = lon[1] + pos_n[1] / ((N + gnss.height[k]) * np.cos(lat[1]))
     x0[2] = gnss.height[k] - pos_n[2]
     x0[3:6] = v_n
     x0[6:10] = dcm_to_quat(C_b_n)
+    unit_level = np.radians(cfg.unit_level_sigma)
+    if inputs.unit_rpy is not None:
+        # the unit's yaw origin: yaw_u = yaw - d
+        x0[16] = float(wrap_pi(yaw - inputs.unit_rpy[start_row, 2]))
+        x0[17] = drift
     noise = noise_model(inputs, cfg)
     sigma = np.asarray(cfg.gnss_sigma)
     P0 = np.diag(np.concatenate([
         sigma**2, (sigma / np.sqrt(2.0)) ** 2 + 0.5**2,
         [level_sigma**2, level_sigma**2, yaw_sigma**2],
-        np.full(3, noise.sigma_bg0**2), np.full(3, noise.sigma_ba0**2)]))
+        np.full(3, noise.sigma_bg0**2), np.full(3, noise.sigma_ba0**2),
+        [unit_level**2, unit_level**2, yaw_sigma**2, drift_sigma**2]]))
+    # d_est - d = yaw_est - yaw = -phi_D at the start: fully (anti-)correlated with the heading error
+    P0[8, 17] = P0[17, 8] = -yaw_sigma**2
     info["noise"] = noise
     return start_row, start_fix, x0, P0, info
 
@@ -178,16 +193,19 @@ def solve_ins(inputs: InsInputs, cfg: ProcessingConfig, smooth: bool = True) -> 
     r_fix = np.tile(np.square(cfg.gnss_sigma), (len(use), 1))
     rate = 1.0 / float(np.median(np.diff(t)))
     stride = max(1, int(round(rate / cfg.covariance_rate)))
+    aiding = bool(cfg.unit_aiding and inputs.unit_rpy is not None)
+    unit_rpy = np.ascontiguousarray(inputs.unit_rpy) if inputs.unit_rpy is not None else np.zeros((len(t), 3))
+    info["unit_aiding"] = aiding
     nav, ep_row, ep_Pm, ep_Pp, ep_Phi, ep_dx, innov, innov_var, status = ekf_forward(
         t, np.ascontiguousarray(inputs.gyro), np.ascontiguousarray(inputs.accel), start_row, x0, P0,
         fix_row, fix_lag, np.ascontiguousarray(z_fix), r_fix, np.asarray(cfg.lever_arm_gnss, float),
-        noise.as_array(), stride, cfg.gate_chi2, MAX_CONSECUTIVE_REJECTS)
+        noise.as_array(cfg), stride, cfg.gate_chi2, MAX_CONSECUTIVE_REJECTS, unit_rpy, aiding)
     if smooth:
         err_post, err_pre, P_s = rts_backward(ep_Pm, ep_Pp, ep_Phi, ep_dx)
         states, pos_var, att_cov = apply_row_corrections(t, nav, ep_row, err_post, err_pre, P_s, P_s)
         P_epochs = P_s
     else:
-        zeros = np.zeros((len(ep_row), 15))
+        zeros = np.zeros((len(ep_row), ep_Pm.shape[1]))
         states, pos_var, att_cov = apply_row_corrections(t, nav, ep_row, zeros, zeros, ep_Pp, ep_Pm)
         P_epochs = ep_Pp
     valid = np.isfinite(states[:, 0])
@@ -206,7 +224,8 @@ def solve_ins(inputs: InsInputs, cfg: ProcessingConfig, smooth: bool = True) -> 
     full_var = np.full((len(gnss), 3), np.nan)
     full_status[use], full_innov[use], full_var[use] = status, innov, innov_var
     full_status[start_fix] = 1
-    info.update({"gyro_bias": safe[:, 10:13], "accel_bias": safe[:, 13:16], "epoch_rows": ep_row,
+    info.update({"gyro_bias": safe[:, 10:13], "accel_bias": safe[:, 13:16], "unit_yaw_origin": safe[:, 16],
+                 "epoch_rows": ep_row,
                  "epoch_sigma": np.sqrt(np.diagonal(P_epochs, axis1=1, axis2=2)), "start_row": start_row,
                  "covariance_stride": stride, "smoothed": smooth})
     return NavSolution(

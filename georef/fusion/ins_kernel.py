@@ -1,7 +1,11 @@
 """Compiled loosely coupled INS/GNSS error-state EKF and its RTS smoother.
 
-Error state (15): ``δr`` NED position error [m], ``δv`` NED velocity error [m/s], ``φ`` attitude error
-[rad] with ``Ĉ_b_n = (I - [φ x]) C_b_n``, ``δb_g`` [rad/s], ``δb_a`` [m/s^2]. Errors are estimate minus truth.
+Error state (19): ``δr`` NED position error [m] (0-2), ``δv`` NED velocity error [m/s] (3-5), ``φ`` attitude
+error [rad] with ``Ĉ_b_n = (I - [φ x]) C_b_n`` (6-8), ``δb_g`` [rad/s] (9-11), ``δb_a`` [m/s^2] (12-14), and
+four states of the POS unit's own attitude output, used only when it aids the filter: its roll and pitch
+errors (Gauss-Markov, 15-16), the offset ``d`` of its yaw origin (17) and that offset's drift rate (18).
+Errors are estimate minus truth. The nominal state (20) is the strapdown state (16) followed by
+``d``, ``d_dot``, the unit's roll error and pitch error.
 
 * The nominal state is mechanised at every IMU row (:mod:`georef.fusion.strapdown`).
 * The covariance is propagated at *covariance epochs*: every ``stride`` rows and at every GNSS update, with
@@ -21,10 +25,11 @@ import numpy as np
 from numba import njit
 
 from georef.fusion.strapdown import increments, mechanise
-from georef.frames.kernels import earth_rate, quat_from_rotvec, quat_mul, quat_normalise, quat_to_dcm, radii, \
-    transport_rate
+from georef.frames.kernels import dcm_to_euler, earth_rate, euler_error_jacobian, quat_from_rotvec, quat_mul, \
+    quat_normalise, quat_to_dcm, radii, transport_rate
 
-NX = 15
+NX = 19
+NS = 20
 
 
 @njit(cache=True)
@@ -38,8 +43,9 @@ def _skew_into(v: np.ndarray, F: np.ndarray, r0: int, c0: int, sign: float) -> N
 
 
 @njit(cache=True)
-def system_matrix(x: np.ndarray, C: np.ndarray, f_n: np.ndarray, inv_tau_g: float, inv_tau_a: float) -> np.ndarray:
-    """Continuous-time error dynamics F (15x15) at nominal state ``x`` with C_b_n and f_n [m/s^2].
+def system_matrix(x: np.ndarray, C: np.ndarray, f_n: np.ndarray, inv_tau_g: float, inv_tau_a: float,
+                  inv_tau_unit: float) -> np.ndarray:
+    """Continuous-time error dynamics F (19x19) at nominal state ``x`` with C_b_n and f_n [m/s^2].
 
     Blocks as in Shin (2005) / KF-GINS: position in local metres, the phi-angle attitude model.
     """
@@ -100,6 +106,10 @@ def system_matrix(x: np.ndarray, C: np.ndarray, f_n: np.ndarray, inv_tau_g: floa
     for i in range(3):
         F[9 + i, 9 + i] = -inv_tau_g
         F[12 + i, 12 + i] = -inv_tau_a
+    # the unit's attitude errors: Gauss-Markov roll/pitch, yaw origin with a drift rate
+    F[15, 15] = -inv_tau_unit
+    F[16, 16] = -inv_tau_unit
+    F[17, 18] = 1.0
     return F
 
 
@@ -115,13 +125,18 @@ def correct_state(x: np.ndarray, dx: np.ndarray) -> None:
         x[3 + i] -= dx[3 + i]
         x[10 + i] -= dx[9 + i]
         x[13 + i] -= dx[12 + i]
+    x[18] -= dx[15]
+    x[19] -= dx[16]
+    x[16] -= dx[17]
+    x[17] -= dx[18]
     q = quat_mul(quat_from_rotvec(dx[6:9]), x[6:10])
     quat_normalise(q)
     x[6:10] = q
 
 
 @njit(cache=True)
-def _process_noise(q_vel: float, q_att: float, q_bg: float, q_ba: float, dt: float) -> np.ndarray:
+def _process_noise(q_vel: float, q_att: float, q_bg: float, q_ba: float, q_unit: float, q_drift: float,
+                   dt: float) -> np.ndarray:
     Q = np.zeros((NX, NX))
     for i in range(3):
         Q[i, i] = q_vel * dt**3 / 3.0
@@ -131,26 +146,32 @@ def _process_noise(q_vel: float, q_att: float, q_bg: float, q_ba: float, dt: flo
         Q[6 + i, 6 + i] = q_att * dt
         Q[9 + i, 9 + i] = q_bg * dt
         Q[12 + i, 12 + i] = q_ba * dt
+    Q[15, 15] = q_unit * dt
+    Q[16, 16] = q_unit * dt
+    Q[18, 18] = q_drift * dt
     return Q
 
 
 @njit(cache=True)
 def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fix, lever, noise, stride,
-                gate_chi2, max_rejects):
+                gate_chi2, max_rejects, unit_rpy, unit_aiding):
     """Forward error-state EKF.
 
     Inputs: row times ``t`` (N,) s; ``gyro`` rad/s and ``accel`` m/s^2 (N, 3) body frame; the start row and
     its nominal state ``x0`` (16,) and covariance ``P0`` (15, 15); per GNSS fix: the row at or after it
     ``fix_row``, ``fix_lag`` = t[row] - t_fix [s], antenna ``z_fix`` (lat, lon [rad], h [m]), NED variances
     ``r_fix`` [m^2]; body lever arm IMU -> antenna [m]; ``noise`` = (q_vel [m^2/s^3], q_att [rad^2/s],
-    q_bg [rad^2/s^3], q_ba [m^2/s^5], 1/tau_g, 1/tau_a) [1/s].
+    q_bg [rad^2/s^3], q_ba [m^2/s^5], 1/tau_g, 1/tau_a [1/s], q_unit [rad^2/s], 1/tau_unit [1/s],
+    q_drift [rad^2/s^3], unit roll/pitch white variance, unit yaw white variance [rad^2]).
+    With ``unit_aiding``, the unit's roll, pitch and yaw ``unit_rpy`` (N, 3) [rad] are fused at every GNSS
+    update row: ``roll_u = roll + e_r``, ``pitch_u = pitch + e_p``, ``yaw_u = yaw - d``.
 
     Returns the nominal state at every row (N, 16) and, per covariance epoch: row, P⁻, P⁺, Φ, the feedback
     correction; per fix: innovation (NED m), its variance, status (1 used, 0 rejected, 2 forced, -1 unused).
     """
     n = t.shape[0]
     m = fix_row.shape[0]
-    nav = np.full((n, 16), np.nan)
+    nav = np.full((n, NS), np.nan)
     max_epochs = (n - start_row) // stride + m + 2
     ep_row = np.zeros(max_epochs, dtype=np.int64)
     ep_Pm = np.zeros((max_epochs, NX, NX))
@@ -186,6 +207,7 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
         k_fix += 1
     rejects = 0
     q_vel, q_att, q_bg, q_ba, inv_tau_g, inv_tau_a = noise[0], noise[1], noise[2], noise[3], noise[4], noise[5]
+    q_unit, inv_tau_unit, q_drift, r_level, r_yaw = noise[6], noise[7], noise[8], noise[9], noise[10]
     eye = np.eye(NX)
     for k in range(start_row + 1, n):
         dt = t[k] - t[k - 1]
@@ -197,6 +219,11 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
         mechanise(x, dtheta, dvel, dtheta_prev, dvel_prev, dt, C)
         dtheta_prev[:] = dtheta
         dvel_prev[:] = dvel
+        # the unit's nominal attitude errors
+        x[16] += x[17] * dt
+        decay = math.exp(-dt * inv_tau_unit)
+        x[18] *= decay
+        x[19] *= decay
         C_mid = 0.5 * (C_start + C)
         C_sum += C_mid
         f_sum += C_mid @ (dvel / dt)
@@ -204,15 +231,39 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
         has_fix = k_fix < m and fix_row[k_fix] == k
         if count >= stride or has_fix or k == n - 1:
             dT = t[k] - t_epoch
-            F = system_matrix(x_epoch, C_sum / count, f_sum / count, inv_tau_g, inv_tau_a)
+            F = system_matrix(x_epoch, C_sum / count, f_sum / count, inv_tau_g, inv_tau_a, inv_tau_unit)
             Fd = F * dT
             Phi = eye + Fd + 0.5 * (Fd @ Fd)
-            Q = _process_noise(q_vel, q_att, q_bg, q_ba, dT)
+            Q = _process_noise(q_vel, q_att, q_bg, q_ba, q_unit, q_drift, dT)
             P = Phi @ P @ Phi.T + 0.5 * (Phi @ Q @ Phi.T + Q)
             ep_row[n_ep] = k
             ep_Pm[n_ep] = P
             ep_Phi[n_ep] = Phi
             dx_total = np.zeros(NX)
+            if unit_aiding and has_fix:
+                roll, pitch, yaw = dcm_to_euler(C)
+                z = np.empty(3)
+                z[0] = roll + x[18] - unit_rpy[k, 0]
+                z[1] = pitch + x[19] - unit_rpy[k, 1]
+                z[2] = yaw - x[16] - unit_rpy[k, 2]
+                z[2] = (z[2] + math.pi) % (2.0 * math.pi) - math.pi
+                H = np.zeros((3, NX))
+                # Ĉ = exp(-[φ x]) C, so the estimated Euler angles exceed the true ones by -J φ
+                H[:, 6:9] = -euler_error_jacobian(C)
+                H[0, 15] = 1.0
+                H[1, 16] = 1.0
+                H[2, 17] = -1.0
+                R = np.diag(np.array([r_level, r_level, r_yaw]))
+                S = H @ P @ H.T + R
+                S_inv = np.linalg.inv(S)
+                if z @ S_inv @ z <= gate_chi2:
+                    K = P @ H.T @ S_inv
+                    dx = K @ z
+                    IKH = eye - K @ H
+                    P = IKH @ P @ IKH.T + K @ R @ K.T
+                    correct_state(x, dx)
+                    quat_to_dcm(x[6:10], C)
+                    dx_total += dx
             while k_fix < m and fix_row[k_fix] == k:
                 # predicted antenna position at the fix time, innovation in NED metres
                 M, N = radii(x[0])

@@ -30,7 +30,9 @@ def processing_config_for(flight: SimulatedFlight, crs: str | None = None) -> Pr
     cfg = flight.config
     return ProcessingConfig(lever_arm_gnss=cfg.lever_arm_gnss_m, lever_arm_camera=cfg.lever_arm_camera_m,
                             boresight=cfg.boresight_deg, gnss_sigma=cfg.gnss.sigma_neu_m,
-                            gnss_rate_hz=cfg.gnss.rate_hz, crs=crs)
+                            gnss_rate_hz=cfg.gnss.rate_hz, crs=crs, imu_preset=cfg.imu_preset,
+                            unit_level_sigma=cfg.unit.level_error_deg, unit_level_time=cfg.unit.level_error_corr_s,
+                            unit_angle_noise=cfg.unit.angle_noise_deg)
 
 
 def write_flight(flight: SimulatedFlight, folder: Path | str, crs: str | None = None) -> dict[str, Path]:
