@@ -33,7 +33,7 @@ def main() -> None:
     for seed in args.seeds:
         flight = simulate(SimConfig(seed=seed, plan=FlightPlan(duration_s=args.minutes * 60.0, seed=seed)))
         paths = write_flight(flight, folder / str(seed))
-        cfg = processing_config_for(flight)
+        cfg = processing_config_for(flight).updated(method="axis")
         result = process(paths["POS.txt"], paths["Kamera.txt"], cfg)
         errors = frame_errors(result.table, flight.truth_frames)
         fig = accuracy(errors)

@@ -90,6 +90,8 @@ class GnssEpochs:
     line: np.ndarray
     repeated: np.ndarray
     notices: list[InputNotice] = field(default_factory=list)
+    #: per-fix 1-sigma north/east/up [m] when the source gives them (generic gnss.csv), else None
+    sigma_neu: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.time)

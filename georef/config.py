@@ -124,7 +124,8 @@ def load_config(path: Path | str, base: ProcessingConfig | None = None) -> Proce
             known = {f.name for f in fields(ImuErrorModel)}
             unknown = [k for k in content if k not in known]
             if unknown:
-                raise InputError(path, None, f"imu.{unknown[0]}", f"unknown key; [imu] takes {', '.join(sorted(known))}")
+                raise InputError(path, None, f"imu.{unknown[0]}",
+                                 f"unknown key; [imu] takes {', '.join(sorted(known))}")
             values["imu_model"] = {str(k): float(v) for k, v in content.items()}
             continue
         if section not in _SECTIONS or not isinstance(content, dict):

@@ -22,7 +22,7 @@ from georef.exposure import interpolate_to_exposures
 from georef.fusion import axis, ins
 from georef.fusion.solution import NavSolution
 from georef.io.camera import Exposures, read_camera_log, read_kamera
-from georef.io.errors import InputNotice
+from georef.io.errors import GeorefError, InputNotice
 from georef.io.pos import PosLog, read_pos
 
 SOLVERS: dict[str, tuple[Callable[[PosLog, ProcessingConfig], NavSolution], tuple[str, ...]]] = {
@@ -98,6 +98,11 @@ def process(pos_path: Path | str, camera_path: Path | str, cfg: ProcessingConfig
     exposures = read_exposures(camera_path, cfg)
     exposures.time = to_reference_day(exposures.time, float(log.time[0]), float(log.time[-1]))
     timings["read"] = time.perf_counter() - start
+
+    if len(log.gnss) < 2:
+        names = log.column_names
+        raise GeorefError(f"{log.path}: no usable GNSS fix (columns {names.get('lat')}, {names.get('lon')}, "
+                          f"{names.get('alt')} stay 0 or hold a single value); every method needs GNSS positions")
 
     start = time.perf_counter()
     say(f"fusing ({cfg.method})")

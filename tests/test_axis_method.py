@@ -22,7 +22,7 @@ SEEDS = [1, 2, 3, 4, 5]
 def _run(tmp_path, cfg: SimConfig):
     flight = simulate(cfg)
     paths = write_flight(flight, tmp_path / f"seed{cfg.seed}")
-    processing = processing_config_for(flight)
+    processing = processing_config_for(flight).updated(method="axis")
     result = process(paths["POS.txt"], paths["Kamera.txt"], processing)
     return flight, result, processing
 

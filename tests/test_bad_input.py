@@ -53,15 +53,16 @@ def _cli(files: dict[str, Path], *extra: str):
     return result
 
 
-def test_missing_column(files, flight_config):
-    frame = pd.read_csv(files["POS.txt"], sep="\t", dtype=str).drop(columns=["IACC_Y"])
+@pytest.mark.parametrize("method, column", [("rts", "ACCS_Y"), ("ekf", "OMGS_Z"), ("axis", "IACC_Y")])
+def test_missing_column(files, flight_config, method, column):
+    frame = pd.read_csv(files["POS.txt"], sep="\t", dtype=str).drop(columns=[column])
     frame.to_csv(files["POS.txt"], sep="\t", index=False)
     with pytest.raises(InputError) as info:
-        process(files["POS.txt"], files["Kamera.txt"], flight_config)
-    assert info.value.line == 1 and info.value.column == "IACC_Y"
-    result = _cli(files)
+        process(files["POS.txt"], files["Kamera.txt"], flight_config.updated(method=method))
+    assert info.value.line == 1 and info.value.column == column
+    result = _cli(files, "--method", method)
     assert result.exit_code == 2
-    assert "POS.txt, line 1, column 'IACC_Y'" in result.output and "missing" in result.output
+    assert f"POS.txt, line 1, column '{column}'" in result.output and "missing" in result.output
 
 
 def test_non_numeric_cell(files, flight_config):

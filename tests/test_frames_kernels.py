@@ -6,6 +6,7 @@ import numpy as np
 
 from georef.frames import (
     earth_rate_n,
+    kernels,
     normal_gravity,
     quat_multiply,
     quat_to_dcm,
@@ -13,7 +14,6 @@ from georef.frames import (
     rotvec_to_quat,
     transport_rate_n,
 )
-from georef.frames import kernels
 
 RNG = np.random.default_rng(8)
 

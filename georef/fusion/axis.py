@@ -41,10 +41,6 @@ def white_noise_sigma(samples: np.ndarray) -> np.ndarray:
 def solve_axis(log: PosLog, cfg: ProcessingConfig) -> NavSolution:
     """Per-axis GPS/INS solution at the POS rows (see the module docstring)."""
     gnss = log.gnss
-    if len(gnss) < 2:
-        raise GeorefError(f"{log.path}: no usable GNSS fix (columns {log.column_names.get('lat')}, "
-                          f"{log.column_names.get('lon')}, {log.column_names.get('alt')} never change from "
-                          f"0 or hold a single value); the axis method needs GNSS positions")
     t = log.time
     iacc_u = log.vector("iacc")
     unit_rpy = np.radians(np.stack([log.data["roll"], log.data["pitch"], log.data["yaw"]], -1))

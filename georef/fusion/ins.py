@@ -190,7 +190,10 @@ def solve_ins(inputs: InsInputs, cfg: ProcessingConfig, smooth: bool = True) -> 
     fix_row = np.searchsorted(t, gnss.time[use], side="left")
     fix_lag = t[fix_row] - gnss.time[use]
     z_fix = np.stack([np.radians(gnss.lat_deg[use]), np.radians(gnss.lon_deg[use]), gnss.height[use]], -1)
-    r_fix = np.tile(np.square(cfg.gnss_sigma), (len(use), 1))
+    if gnss.sigma_neu is not None:
+        r_fix = np.square(np.where(np.isfinite(gnss.sigma_neu[use]), gnss.sigma_neu[use], cfg.gnss_sigma))
+    else:
+        r_fix = np.tile(np.square(cfg.gnss_sigma), (len(use), 1))
     rate = 1.0 / float(np.median(np.diff(t)))
     stride = max(1, int(round(rate / cfg.covariance_rate)))
     aiding = bool(cfg.unit_aiding and inputs.unit_rpy is not None)
@@ -202,11 +205,11 @@ def solve_ins(inputs: InsInputs, cfg: ProcessingConfig, smooth: bool = True) -> 
         noise.as_array(cfg), stride, cfg.gate_chi2, MAX_CONSECUTIVE_REJECTS, unit_rpy, aiding)
     if smooth:
         err_post, err_pre, P_s = rts_backward(ep_Pm, ep_Pp, ep_Phi, ep_dx)
-        states, pos_var, att_cov = apply_row_corrections(t, nav, ep_row, err_post, err_pre, P_s, P_s)
+        states, pos_var, vel_var, att_cov = apply_row_corrections(t, nav, ep_row, err_post, err_pre, P_s, P_s)
         P_epochs = P_s
     else:
         zeros = np.zeros((len(ep_row), ep_Pm.shape[1]))
-        states, pos_var, att_cov = apply_row_corrections(t, nav, ep_row, zeros, zeros, ep_Pp, ep_Pm)
+        states, pos_var, vel_var, att_cov = apply_row_corrections(t, nav, ep_row, zeros, zeros, ep_Pp, ep_Pm)
         P_epochs = ep_Pp
     valid = np.isfinite(states[:, 0])
     safe = np.where(valid[:, None], states, states[start_row])
@@ -224,8 +227,9 @@ def solve_ins(inputs: InsInputs, cfg: ProcessingConfig, smooth: bool = True) -> 
     full_var = np.full((len(gnss), 3), np.nan)
     full_status[use], full_innov[use], full_var[use] = status, innov, innov_var
     full_status[start_fix] = 1
-    info.update({"gyro_bias": safe[:, 10:13], "accel_bias": safe[:, 13:16], "unit_yaw_origin": safe[:, 16],
-                 "epoch_rows": ep_row,
+    vel_var[~valid] = np.nan
+    info.update({"vel_var_n": vel_var, "gyro_bias": safe[:, 10:13], "accel_bias": safe[:, 13:16],
+                 "unit_yaw_origin": safe[:, 16], "epoch_rows": ep_row,
                  "epoch_sigma": np.sqrt(np.diagonal(P_epochs, axis1=1, axis2=2)), "start_row": start_row,
                  "covariance_stride": stride, "smoothed": smooth})
     return NavSolution(

@@ -24,9 +24,18 @@ import math
 import numpy as np
 from numba import njit
 
+from georef.frames.kernels import (
+    dcm_to_euler,
+    earth_rate,
+    euler_error_jacobian,
+    quat_from_rotvec,
+    quat_mul,
+    quat_normalise,
+    quat_to_dcm,
+    radii,
+    transport_rate,
+)
 from georef.fusion.strapdown import increments, mechanise
-from georef.frames.kernels import dcm_to_euler, earth_rate, euler_error_jacobian, quat_from_rotvec, quat_mul, \
-    quat_normalise, quat_to_dcm, radii, transport_rate
 
 NX = 19
 NS = 20
@@ -348,11 +357,13 @@ def apply_row_corrections(t, nav, ep_row, err_post, err_pre, P_post, P_pre):
     At epoch j the row carries ``err_post[j]`` and ``P_post[j]``; just before epoch j+1 the error tends to
     ``err_pre[j+1]`` and the covariance to ``P_pre[j+1]``. For the smoother pass its smoothed errors and
     ``P_post = P_pre = P_s``; for the forward filter zero errors, ``P_post = P+`` and ``P_pre = P-``.
-    Returns corrected states (N, 16), position variances (N, 3) and attitude-error covariances (N, 3, 3).
+    Returns corrected states (N, 20), position and velocity variances (N, 3) and attitude-error
+    covariances (N, 3, 3).
     """
     n = nav.shape[0]
     out = nav.copy()
     pos_var = np.full((n, 3), np.nan)
+    vel_var = np.full((n, 3), np.nan)
     att_cov = np.full((n, 3, 3), np.nan)
     n_ep = ep_row.shape[0]
     for j in range(n_ep):
@@ -369,6 +380,7 @@ def apply_row_corrections(t, nav, ep_row, err_post, err_pre, P_post, P_pre):
             correct_state(out[r], e)
             for i in range(3):
                 pos_var[r, i] = P[i, i]
+                vel_var[r, i] = P[3 + i, 3 + i]
                 for c in range(3):
                     att_cov[r, i, c] = P[6 + i, 6 + c]
-    return out, pos_var, att_cov
+    return out, pos_var, vel_var, att_cov

@@ -25,8 +25,17 @@ import math
 import numpy as np
 from numba import njit
 
-from georef.frames.kernels import cross, earth_rate, gravity, quat_from_rotvec, quat_mul, quat_normalise, \
-    quat_to_dcm, radii, transport_rate
+from georef.frames.kernels import (
+    cross,
+    earth_rate,
+    gravity,
+    quat_from_rotvec,
+    quat_mul,
+    quat_normalise,
+    quat_to_dcm,
+    radii,
+    transport_rate,
+)
 
 
 @njit(cache=True)

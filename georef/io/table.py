@@ -123,8 +123,8 @@ def read_table(
 ) -> Table:
     """Read the ``wanted`` columns (name -> kind) of a header-led table.
 
-    * A missing required column, a cell that is not of its kind, an empty cell in a required column or a
-      row with too many fields raises :class:`InputError` naming file, line and column.
+    * A missing required column, a cell that is not of its kind, an empty cell in any column that is read,
+      or a row with too many fields raises :class:`InputError` naming file, line and column.
     * A truncated last line (fewer fields than the header, as when a logger loses power) is dropped
       with a notice; blank lines are dropped with a notice.
     * Optional columns that are absent are simply not in ``Table.columns``.
@@ -174,11 +174,11 @@ def read_table(
     for name in present:
         values = frame[name].to_numpy()
         kind = wanted[name]
-        if name in required:
-            empty = pd.isna(values) if kind in ("float", "int") else (pd.isna(values) | (values == ""))
-            if np.any(empty):
-                index = int(np.argmax(empty))
-                raise InputError(path, int(lines[index]), name, "empty cell in a required column")
+        # every column that is read is used: an empty cell is never silently a NaN
+        empty = pd.isna(values) if kind in ("float", "int") else (pd.isna(values) | (values == ""))
+        if np.any(empty):
+            index = int(np.argmax(empty))
+            raise InputError(path, int(lines[index]), name, "empty cell")
         if kind == "hex":
             parsed, bad = parse_hex(np.where(pd.isna(values), "0", values))
             if bad.any():

@@ -1,0 +1,83 @@
+"""Generic inputs for users without an iMAR unit, and the fused trajectory table.
+
+* ``imu.csv``: ``time, gyro_x, gyro_y, gyro_z, acc_x, acc_y, acc_z`` — seconds (any epoch, increasing),
+  rad/s, m/s^2, body axes forward-right-down.
+* ``gnss.csv``: ``time, lat, lon, height`` [+ ``sigma_n, sigma_e, sigma_u``] — degrees, metres, antenna
+  position, the IMU's time scale.
+* ``traj.csv`` (written by ``georef fuse``): ``time, lat, lon, height, vn, ve, vd, roll, pitch, yaw`` and
+  their standard deviations.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from georef.align import GnssEpochs, check_increasing
+from georef.frames import wrap_360
+from georef.fusion.solution import NavSolution
+from georef.io.atomic import atomic_write
+from georef.io.errors import InputError
+from georef.io.table import read_table
+
+IMU_COLUMNS = ("time", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
+GNSS_COLUMNS = ("time", "lat", "lon", "height")
+
+
+def read_imu_csv(path: Path | str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``imu.csv`` -> time [s], gyro [rad/s] (N, 3), specific force [m/s^2] (N, 3), file lines."""
+    table = read_table(path, dict.fromkeys(IMU_COLUMNS, "float"), required=set(IMU_COLUMNS), sep=",")
+    c = table.columns
+    check_increasing(table.path, c["time"], table.lines, "time")
+    same = np.flatnonzero(np.diff(c["time"]) == 0)
+    if len(same):
+        raise InputError(table.path, int(table.lines[same[0] + 1]), "time", "repeated time stamp")
+    gyro = np.stack([c["gyro_x"], c["gyro_y"], c["gyro_z"]], -1)
+    accel = np.stack([c["acc_x"], c["acc_y"], c["acc_z"]], -1)
+    return c["time"], gyro, accel, table.lines
+
+
+def read_gnss_csv(path: Path | str) -> GnssEpochs:
+    """``gnss.csv`` -> GNSS antenna fixes (optional per-fix sigmas)."""
+    wanted = dict.fromkeys((*GNSS_COLUMNS, "sigma_n", "sigma_e", "sigma_u"), "float")
+    table = read_table(path, wanted, required=set(GNSS_COLUMNS), sep=",")
+    c = table.columns
+    check_increasing(table.path, c["time"], table.lines, "time")
+    bad = np.flatnonzero((np.abs(c["lat"]) > 90) | (np.abs(c["lon"]) > 180))
+    if len(bad):
+        raise InputError(table.path, int(table.lines[bad[0]]), "lat/lon", "coordinate outside the valid range")
+    sigma = None
+    if all(name in c for name in ("sigma_n", "sigma_e", "sigma_u")):
+        sigma = np.stack([c["sigma_n"], c["sigma_e"], c["sigma_u"]], -1)
+        nonpositive = np.flatnonzero(np.any(sigma <= 0, axis=1))
+        if len(nonpositive):
+            raise InputError(table.path, int(table.lines[nonpositive[0]]), "sigma_n/e/u", "sigma must be positive")
+    return GnssEpochs(time=c["time"], lat_deg=c["lat"], lon_deg=c["lon"], height=c["height"], line=table.lines,
+                      repeated=np.zeros(len(table), bool), notices=list(table.notices), sigma_neu=sigma)
+
+
+def trajectory_table(nav: NavSolution) -> pd.DataFrame:
+    """The fused trajectory at every IMU row with a solution: degrees, metres, m/s, 1-sigma."""
+    v = nav.valid
+    v_n = nav.v_n
+    vel_var = nav.info.get("vel_var_n", np.full((len(nav.time), 3), np.nan))
+    return pd.DataFrame({
+        "time": nav.time[v], "lat": np.degrees(nav.lat[v]), "lon": np.degrees(nav.lon[v]), "height": nav.height[v],
+        "vn": v_n[v, 0], "ve": v_n[v, 1], "vd": v_n[v, 2],
+        "roll": np.degrees(nav.roll[v]), "pitch": np.degrees(nav.pitch[v]), "yaw": wrap_360(np.degrees(nav.yaw[v])),
+        "sigma_n": np.sqrt(nav.pos_var_n[v, 0]), "sigma_e": np.sqrt(nav.pos_var_n[v, 1]),
+        "sigma_u": np.sqrt(nav.pos_var_n[v, 2]),
+        "sigma_vn": np.sqrt(vel_var[v, 0]), "sigma_ve": np.sqrt(vel_var[v, 1]), "sigma_vd": np.sqrt(vel_var[v, 2]),
+        "sigma_roll": np.degrees(nav.att_sigma[v, 0]), "sigma_pitch": np.degrees(nav.att_sigma[v, 1]),
+        "sigma_yaw": np.degrees(nav.att_sigma[v, 2]),
+    })
+
+
+def write_trajectory_csv(nav: NavSolution, path: Path | str) -> Path:
+    """Write ``traj.csv`` atomically."""
+    table = trajectory_table(nav)
+    with atomic_write(path) as handle:
+        table.to_csv(handle, index=False, float_format="%.10g", lineterminator="\n")
+    return Path(path)
