@@ -6,7 +6,9 @@ never a traceback.
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -23,7 +25,7 @@ from georef.frames.mapping import CRSChoiceError
 from georef.io.errors import GeorefError
 
 app = typer.Typer(
-    add_completion=False, no_args_is_help=True, rich_markup_mode=None,
+    add_completion=False, no_args_is_help=True, rich_markup_mode=None, pretty_exceptions_enable=False,
     help="georef: GPS/INS direct georeferencing of aerial imagery. Units: metres, degrees, seconds; "
          "body axes x forward, y right, z down.",
 )
@@ -54,6 +56,15 @@ def _user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
         except (GeorefError, CRSChoiceError, ValueError, KeyError, OSError) as exc:
             console.print(f"[bold red]error:[/] {exc}", highlight=False)
             raise typer.Exit(code=2) from None
+        except (typer.Exit, typer.Abort, SystemExit, KeyboardInterrupt):
+            raise
+        except Exception as exc:  # a bug in georef, not in the user's input
+            if os.environ.get("GEOREF_DEBUG"):
+                raise
+            console.print(f"[bold red]internal error:[/] {type(exc).__name__}: {exc}. This is a bug in georef; "
+                          "please report it with the command you ran (GEOREF_DEBUG=1 shows the traceback).",
+                          highlight=False)
+            raise typer.Exit(code=3) from None
 
     return wrapper
 
@@ -189,10 +200,12 @@ def simulate(
         help="GNSS outlier TIME,SIZE (s from start, metres); repeatable.")] = None,
     crs: Annotated[str | None, typer.Option(
         help="Projected CRS to put in the written flight.toml, e.g. EPSG:3765.")] = None,
+    generic: Annotated[bool, typer.Option(
+        help="Also write imu.csv, gnss.csv and truth_traj.csv (the generic inputs of georef fuse).")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors.")] = False,
 ) -> None:
     """Simulate a helicopter survey flight (MEMS IMU with vibration, 1 Hz GNSS) with its truth."""
-    from georef.sim.files import write_flight
+    from georef.sim.files import write_flight, write_generic
     from georef.sim.flight import SimConfig
     from georef.sim.flight import simulate as run
     from georef.sim.sensors import GnssModel
@@ -217,13 +230,61 @@ def simulate(
             flight = run(cfg)
             step("writing files")
             paths = write_flight(flight, folder, crs=crs)
+            if generic:
+                paths.update(write_generic(flight, folder))
     else:
         flight = run(cfg)
         paths = write_flight(flight, folder, crs=crs)
+        if generic:
+            paths.update(write_generic(flight, folder))
     if not quiet:
         out.print(f"wrote {', '.join(str(p) for p in paths.values())}")
         out.print(f"{len(flight.pos)} POS rows at {rate:g} Hz, {len(flight.exposures)} exposures, "
                   f"{len(flight.gnss_fixes)} GNSS fixes")
+
+
+@app.command()
+@_user_errors
+def fuse(
+    imu: Annotated[Path, typer.Option(help="imu.csv: time [s], gyro_x..z [rad/s], acc_x..z [m/s^2], body FRD.")],
+    gnss: Annotated[Path, typer.Option(help="gnss.csv: time [s], lat, lon [deg], height [m] of the antenna, "
+                                            "optional sigma_n, sigma_e, sigma_u [m].")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Trajectory to write (traj.csv).")] = Path("traj.csv"),
+    config: Annotated[Path | None, typer.Option("--config", help="flight.toml with any of these settings.")] = None,
+    method: Annotated[str, typer.Option(help="rts (EKF + smoother) or ekf (forward filter only).")] = "rts",
+    gnss_lever_arm: Annotated[str | None, typer.Option(
+        help="IMU -> GNSS antenna lever arm X,Y,Z in metres, body frame (x fwd, y right, z down).")] = None,
+    gnss_sigma: Annotated[str | None, typer.Option(
+        help="GNSS sigma N,E,U in metres for fixes without their own sigmas (default 1,1,2).")] = None,
+    imu_preset: Annotated[str | None, typer.Option(
+        help="IMU error preset: mems-ivru, mems-consumer, tactical-fog (datasheet values in docs).")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors.")] = False,
+) -> None:
+    """Fuse generic IMU and GNSS files into a trajectory (position, velocity, attitude with sigmas)."""
+    from georef.fusion.ins import InsInputs, solve_ins
+    from georef.io.generic import read_gnss_csv, read_imu_csv, write_trajectory_csv
+
+    if method not in ("rts", "ekf"):
+        raise typer.BadParameter(f"--method must be rts or ekf for georef fuse, got {method!r}")
+    cfg = load_config(config) if config else ProcessingConfig()
+    cfg = cfg.updated(lever_arm_gnss=_triple(gnss_lever_arm, "--gnss-lever-arm", "metres"),
+                      gnss_sigma=_triple(gnss_sigma, "--gnss-sigma", "metres"), imu_preset=imu_preset)
+    progress, step = _stage_progress(quiet, total=3)
+    with progress if progress is not None else contextlib.nullcontext():
+        step("reading inputs")
+        time_s, gyro, accel, _ = read_imu_csv(imu)
+        fixes = read_gnss_csv(gnss)
+        step(f"fusing ({method})")
+        nav = solve_ins(InsInputs(time=time_s, gyro=gyro, accel=accel, gnss=fixes, source=str(imu)), cfg,
+                        smooth=method == "rts")
+        step("writing trajectory")
+        write_trajectory_csv(nav, output)
+    if not quiet:
+        used = int((nav.gnss.status >= 1).sum())
+        rejected = nav.gnss.rejected_lines
+        named = f" (lines {', '.join(map(str, rejected[:10]))})" if rejected else ""
+        out.print(f"{int(nav.valid.sum())} trajectory rows -> {output}; GNSS {len(fixes)} fixes, {used} used, "
+                  f"{len(rejected)} rejected{named}; heading from {nav.info.get('heading_source')}")
 
 
 @app.command()

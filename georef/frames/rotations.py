@@ -94,23 +94,23 @@ def dcm_to_quat(C: ArrayLike) -> Array:
     diag = np.stack([tr, C[..., 0, 0], C[..., 1, 1], C[..., 2, 2]], axis=-1)
     choice = np.argmax(diag, axis=-1)
     q = np.empty(C.shape[:-2] + (4,))
-    # case 0: w largest
-    s = np.sqrt(np.maximum(1.0 + tr, 0.0)) * 2.0
-    q0 = np.stack([0.25 * s, (C[..., 2, 1] - C[..., 1, 2]) / s, (C[..., 0, 2] - C[..., 2, 0]) / s,
-                   (C[..., 1, 0] - C[..., 0, 1]) / s], axis=-1)
-    s = np.sqrt(np.maximum(1.0 + C[..., 0, 0] - C[..., 1, 1] - C[..., 2, 2], 0.0)) * 2.0
-    q1 = np.stack([(C[..., 2, 1] - C[..., 1, 2]) / s, 0.25 * s, (C[..., 0, 1] + C[..., 1, 0]) / s,
-                   (C[..., 0, 2] + C[..., 2, 0]) / s], axis=-1)
-    s = np.sqrt(np.maximum(1.0 - C[..., 0, 0] + C[..., 1, 1] - C[..., 2, 2], 0.0)) * 2.0
-    q2 = np.stack([(C[..., 0, 2] - C[..., 2, 0]) / s, (C[..., 0, 1] + C[..., 1, 0]) / s, 0.25 * s,
-                   (C[..., 1, 2] + C[..., 2, 1]) / s], axis=-1)
-    s = np.sqrt(np.maximum(1.0 - C[..., 0, 0] - C[..., 1, 1] + C[..., 2, 2], 0.0)) * 2.0
-    q3 = np.stack([(C[..., 1, 0] - C[..., 0, 1]) / s, (C[..., 0, 2] + C[..., 2, 0]) / s,
-                   (C[..., 1, 2] + C[..., 2, 1]) / s, 0.25 * s], axis=-1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for k, candidate in enumerate((q0, q1, q2, q3)):
-            mask = choice == k
-            q[mask] = candidate[mask]
+    with np.errstate(divide="ignore", invalid="ignore"):  # unchosen cases may divide by 0
+        # case 0: w largest
+        s = np.sqrt(np.maximum(1.0 + tr, 0.0)) * 2.0
+        q0 = np.stack([0.25 * s, (C[..., 2, 1] - C[..., 1, 2]) / s, (C[..., 0, 2] - C[..., 2, 0]) / s,
+                       (C[..., 1, 0] - C[..., 0, 1]) / s], axis=-1)
+        s = np.sqrt(np.maximum(1.0 + C[..., 0, 0] - C[..., 1, 1] - C[..., 2, 2], 0.0)) * 2.0
+        q1 = np.stack([(C[..., 2, 1] - C[..., 1, 2]) / s, 0.25 * s, (C[..., 0, 1] + C[..., 1, 0]) / s,
+                       (C[..., 0, 2] + C[..., 2, 0]) / s], axis=-1)
+        s = np.sqrt(np.maximum(1.0 - C[..., 0, 0] + C[..., 1, 1] - C[..., 2, 2], 0.0)) * 2.0
+        q2 = np.stack([(C[..., 0, 2] - C[..., 2, 0]) / s, (C[..., 0, 1] + C[..., 1, 0]) / s, 0.25 * s,
+                       (C[..., 1, 2] + C[..., 2, 1]) / s], axis=-1)
+        s = np.sqrt(np.maximum(1.0 - C[..., 0, 0] - C[..., 1, 1] + C[..., 2, 2], 0.0)) * 2.0
+        q3 = np.stack([(C[..., 1, 0] - C[..., 0, 1]) / s, (C[..., 0, 2] + C[..., 2, 0]) / s,
+                       (C[..., 1, 2] + C[..., 2, 1]) / s, 0.25 * s], axis=-1)
+    for k, candidate in enumerate((q0, q1, q2, q3)):
+        mask = choice == k
+        q[mask] = candidate[mask]
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     return np.where(q[..., :1] < 0.0, -q, q)
 

@@ -173,7 +173,8 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
     q_bg [rad^2/s^3], q_ba [m^2/s^5], 1/tau_g, 1/tau_a [1/s], q_unit [rad^2/s], 1/tau_unit [1/s],
     q_drift [rad^2/s^3], unit roll/pitch white variance, unit yaw white variance [rad^2]).
     With ``unit_aiding``, the unit's roll, pitch and yaw ``unit_rpy`` (N, 3) [rad] are fused at every GNSS
-    update row: ``roll_u = roll + e_r``, ``pitch_u = pitch + e_p``, ``yaw_u = yaw - d``.
+    update row and at least once a second (also in GNSS outages): ``roll_u = roll + e_r``,
+    ``pitch_u = pitch + e_p``, ``yaw_u = yaw - d``.
 
     Returns the nominal state at every row (N, 16) and, per covariance epoch: row, P⁻, P⁺, Φ, the feedback
     correction; per fix: innovation (NED m), its variance, status (1 used, 0 rejected, 2 forced, -1 unused).
@@ -215,6 +216,7 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
     while k_fix < m and fix_row[k_fix] <= start_row:
         k_fix += 1
     rejects = 0
+    t_unit = t[start_row]
     q_vel, q_att, q_bg, q_ba, inv_tau_g, inv_tau_a = noise[0], noise[1], noise[2], noise[3], noise[4], noise[5]
     q_unit, inv_tau_unit, q_drift, r_level, r_yaw = noise[6], noise[7], noise[8], noise[9], noise[10]
     eye = np.eye(NX)
@@ -249,7 +251,8 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
             ep_Pm[n_ep] = P
             ep_Phi[n_ep] = Phi
             dx_total = np.zeros(NX)
-            if unit_aiding and has_fix:
+            if unit_aiding and (has_fix or t[k] - t_unit >= 1.0):
+                t_unit = t[k]
                 roll, pitch, yaw = dcm_to_euler(C)
                 z = np.empty(3)
                 z[0] = roll + x[18] - unit_rpy[k, 0]

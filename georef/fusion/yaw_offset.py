@@ -247,7 +247,7 @@ def recover_yaw_offset(
     """
     windows = window_offsets(gnss_time, gnss_lat_deg, gnss_lon_deg, gnss_height, imu_time, iacc_u, unit_rpy,
                              lever_arm_gnss, sigma_ne, window=window, step=step)
-    overlap = max(1.0, np.sqrt(window / step))
+    overlap = float(np.sqrt(max(1.0, window / step)))
     ok = windows.accepted
     if ok.sum() == 0:
         raise ValueError("the yaw offset cannot be recovered: no window of GNSS fixes has enough horizontal "

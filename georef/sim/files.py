@@ -32,7 +32,7 @@ def processing_config_for(flight: SimulatedFlight, crs: str | None = None) -> Pr
                             boresight=cfg.boresight_deg, gnss_sigma=cfg.gnss.sigma_neu_m,
                             gnss_rate_hz=cfg.gnss.rate_hz, crs=crs, imu_preset=cfg.imu_preset,
                             unit_level_sigma=cfg.unit.level_error_deg, unit_level_time=cfg.unit.level_error_corr_s,
-                            unit_angle_noise=cfg.unit.angle_noise_deg)
+                            unit_angle_noise=cfg.unit.angle_noise_deg, unit_drift_change=0.01)
 
 
 def write_flight(flight: SimulatedFlight, folder: Path | str, crs: str | None = None) -> dict[str, Path]:
@@ -52,4 +52,29 @@ def write_flight(flight: SimulatedFlight, folder: Path | str, crs: str | None = 
     with atomic_write(paths["flight.toml"]) as handle:
         handle.write("# Processing settings matching the simulated installation (georef simulate).\n")
         handle.write(config_to_toml(processing_config_for(flight, crs)))
+    return paths
+
+
+def write_generic(flight: SimulatedFlight, folder: Path | str) -> dict[str, Path]:
+    """Write the flight as the generic inputs: ``imu.csv``, ``gnss.csv`` and ``truth_traj.csv`` (IMU truth)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    pos = flight.pos
+    nav = flight.truth_nav
+    imu = pd.DataFrame({"time": nav.time,
+                        "gyro_x": np.radians(pos["OMGS_X"]), "gyro_y": np.radians(pos["OMGS_Y"]),
+                        "gyro_z": np.radians(pos["OMGS_Z"]),
+                        "acc_x": pos["ACCS_X"], "acc_y": pos["ACCS_Y"], "acc_z": pos["ACCS_Z"]})
+    fixes = flight.gnss_fixes
+    sigma = flight.config.gnss.sigma_neu_m
+    gnss = pd.DataFrame({"time": fixes["time"], "lat": fixes["lat"], "lon": fixes["lon"], "height": fixes["height"],
+                         "sigma_n": sigma[0], "sigma_e": sigma[1], "sigma_u": sigma[2]})
+    truth = pd.DataFrame({"time": nav.time, "lat": np.degrees(nav.lat), "lon": np.degrees(nav.lon),
+                          "height": nav.height, "vn": nav.v_n[:, 0], "ve": nav.v_n[:, 1], "vd": nav.v_n[:, 2],
+                          "roll": np.degrees(nav.roll), "pitch": np.degrees(nav.pitch),
+                          "yaw": np.degrees(nav.yaw) % 360.0})
+    paths = {name: folder / name for name in ("imu.csv", "gnss.csv", "truth_traj.csv")}
+    for name, table in (("imu.csv", imu), ("gnss.csv", gnss), ("truth_traj.csv", truth)):
+        with atomic_write(paths[name]) as handle:
+            table.to_csv(handle, index=False, float_format="%.12g", lineterminator="\n")
     return paths
