@@ -15,7 +15,6 @@ from georef.align import GnssEpochs
 from georef.config import ProcessingConfig
 from georef.exposure import ExposureStates
 from georef.frames import C_e_n, dcm_to_euler, ecef_to_geodetic, skew, wrap_360
-from georef.frames.mapping import MapProjection
 from georef.frames.mounting import camera_attitude, lever_arm_ecef
 from georef.frames.rotations import euler_error_jacobian
 from georef.io.camera import Exposures
@@ -91,6 +90,8 @@ def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpoc
             out[name][inside] = value
     table = pd.DataFrame({"frame": exposures.frame, "time": exposures.time, **out})
     if cfg.crs:
+        from georef.frames.mapping import MapProjection  # pyproj only when a CRS is asked for
+
         projection = MapProjection(cfg.crs)
         easting = np.full(n, np.nan)
         northing = np.full(n, np.nan)

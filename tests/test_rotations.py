@@ -127,3 +127,13 @@ def test_euler_error_jacobian_by_finite_differences():
             rotated = Rotation.from_rotvec(-phi).as_matrix() @ C
             minus = np.array(dcm_to_euler(rotated))
             np.testing.assert_allclose(wrap_pi(plus - minus) / (2 * step), J[:, k], atol=1e-6)
+
+
+def test_quat_to_rotvec_matches_scipy():
+    from georef.frames.rotations import quat_to_rotvec
+
+    rotvec = np.concatenate([RNG.normal(size=(200, 3)), RNG.normal(size=(5, 3)) * 1e-9, np.zeros((1, 3))])
+    rotvec = rotvec[np.linalg.norm(rotvec, axis=1) < np.pi]
+    q = Rotation.from_rotvec(rotvec).as_quat(scalar_first=True)
+    np.testing.assert_allclose(quat_to_rotvec(q), rotvec, atol=1e-12)
+    np.testing.assert_allclose(quat_to_rotvec(-q), rotvec, atol=1e-12)

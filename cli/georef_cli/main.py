@@ -21,7 +21,6 @@ from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeEl
 from rich.table import Table
 
 from georef.config import METHODS, ProcessingConfig, load_config
-from georef.frames.mapping import CRSChoiceError
 from georef.io.errors import GeorefError
 
 app = typer.Typer(
@@ -53,7 +52,7 @@ def _user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
             return func(*args, **kwargs)
-        except (GeorefError, CRSChoiceError, ValueError, KeyError, OSError) as exc:
+        except (GeorefError, ValueError, KeyError, OSError) as exc:  # CRSChoiceError is a ValueError
             console.print(f"[bold red]error:[/] {exc}", highlight=False)
             raise typer.Exit(code=2) from None
         except (typer.Exit, typer.Abort, SystemExit, KeyboardInterrupt):

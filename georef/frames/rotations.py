@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation, Slerp
 
 Array = NDArray[np.float64]
 
@@ -143,19 +142,38 @@ def rotvec_to_quat(rotvec: ArrayLike) -> Array:
     return np.concatenate([np.cos(half), factor * rotvec], axis=-1)
 
 
-def rotation_from_dcm(C: ArrayLike) -> Rotation:
-    """A scipy ``Rotation`` from rotation matrices; the matrix maps frame-b vectors into frame-n."""
-    return Rotation.from_matrix(np.asarray(C, dtype=float))
+def quat_to_rotvec(q: ArrayLike) -> Array:
+    """Unit scalar-first quaternion(s) (..., 4) to rotation vectors [rad] (..., 3), angle in [0, pi]."""
+    q = np.asarray(q, dtype=float)
+    q = np.where(q[..., :1] < 0.0, -q, q)
+    vector = q[..., 1:]
+    norm = np.linalg.norm(vector, axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(norm, q[..., :1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        factor = np.where(norm > 1e-12, angle / np.where(norm > 0, norm, 1.0), 2.0)
+    return factor * vector
 
 
 def slerp_dcm(times: ArrayLike, C: ArrayLike, new_times: ArrayLike) -> Array:
     """Interpolate rotation matrices (N, 3, 3) given at increasing ``times`` [s] to ``new_times`` on SO(3).
 
-    Spherical linear interpolation (scipy ``Slerp``) between the bracketing samples; ``new_times`` must
-    lie inside ``[times[0], times[-1]]``.
+    Spherical linear interpolation between the bracketing samples: ``q = q0 ⊗ exp(s log(q0* ⊗ q1))`` on
+    Hamilton quaternions, the shorter way round. ``new_times`` must lie inside ``[times[0], times[-1]]``.
+    Equal to scipy's ``Slerp`` (``tests/test_rotations.py``); written on georef's quaternions so that the
+    command line does not pay scipy.spatial's import time.
     """
-    slerp = Slerp(np.asarray(times, dtype=float), rotation_from_dcm(C))
-    return slerp(np.asarray(new_times, dtype=float)).as_matrix()
+    times = np.asarray(times, dtype=float)
+    new_times = np.atleast_1d(np.asarray(new_times, dtype=float))
+    C = np.asarray(C, dtype=float)
+    upper = np.clip(np.searchsorted(times, new_times, side="right"), 1, len(times) - 1)
+    lower = upper - 1
+    q0 = dcm_to_quat(C[lower])
+    q1 = dcm_to_quat(C[upper])
+    q1 = np.where(np.sum(q0 * q1, axis=-1, keepdims=True) < 0.0, -q1, q1)
+    q0_conj = q0 * np.array([1.0, -1.0, -1.0, -1.0])
+    relative = quat_to_rotvec(quat_multiply(q0_conj, q1))
+    fraction = ((new_times - times[lower]) / (times[upper] - times[lower]))[:, None]
+    return quat_to_dcm(quat_multiply(q0, rotvec_to_quat(fraction * relative)))
 
 
 def attitude_at(times: ArrayLike, roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike,

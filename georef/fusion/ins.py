@@ -17,11 +17,10 @@ import numpy as np
 
 from georef.align import GnssEpochs
 from georef.config import ProcessingConfig
-from georef.frames import C_n_e, dcm_to_euler, dcm_to_quat, euler_to_dcm, geodetic_to_ecef, quat_to_dcm
-from georef.frames.kernels import radii
-from georef.frames.rotations import euler_error_jacobian, wrap_pi
+from georef.frames import C_n_e, dcm_to_quat, euler_to_dcm, geodetic_to_ecef, radii_of_curvature
+from georef.frames.rotations import wrap_pi
 from georef.fusion.axis import white_noise_sigma
-from georef.fusion.ins_kernel import apply_row_corrections, ekf_forward, rts_backward
+from georef.fusion.ins_kernel import run_ins
 from georef.fusion.solution import GnssUse, NavSolution
 from georef.fusion.yaw_offset import recover_yaw_offset
 from georef.io.errors import GeorefError
@@ -151,7 +150,7 @@ def _initial_state(inputs: InsInputs, cfg: ProcessingConfig) -> tuple[int, int, 
         yaw_sigma = np.radians(15.0)
         info["heading_source"] = "GNSS track"
     C_b_n = euler_to_dcm(roll, pitch, yaw)
-    M, N = radii(lat[1])
+    M, N = radii_of_curvature(lat[1])
     lever_n = C_b_n @ np.asarray(cfg.lever_arm_gnss)
     x0 = np.zeros(20)
     pos_n = v_n * lag - lever_n  # IMU at the start row, relative to the antenna fix
@@ -199,28 +198,18 @@ def solve_ins(inputs: InsInputs, cfg: ProcessingConfig, smooth: bool = True) -> 
     aiding = bool(cfg.unit_aiding and inputs.unit_rpy is not None)
     unit_rpy = np.ascontiguousarray(inputs.unit_rpy) if inputs.unit_rpy is not None else np.zeros((len(t), 3))
     info["unit_aiding"] = aiding
-    nav, ep_row, ep_Pm, ep_Pp, ep_Phi, ep_dx, innov, innov_var, status = ekf_forward(
-        t, np.ascontiguousarray(inputs.gyro), np.ascontiguousarray(inputs.accel), start_row, x0, P0,
-        fix_row, fix_lag, np.ascontiguousarray(z_fix), r_fix, np.asarray(cfg.lever_arm_gnss, float),
-        noise.as_array(cfg), stride, cfg.gate_chi2, MAX_CONSECUTIVE_REJECTS, unit_rpy, aiding)
-    if smooth:
-        err_post, err_pre, P_s = rts_backward(ep_Pm, ep_Pp, ep_Phi, ep_dx)
-        states, pos_var, vel_var, att_cov = apply_row_corrections(t, nav, ep_row, err_post, err_pre, P_s, P_s)
-        P_epochs = P_s
-    else:
-        zeros = np.zeros((len(ep_row), ep_Pm.shape[1]))
-        states, pos_var, vel_var, att_cov = apply_row_corrections(t, nav, ep_row, zeros, zeros, ep_Pp, ep_Pm)
-        P_epochs = ep_Pp
-    valid = np.isfinite(states[:, 0])
-    safe = np.where(valid[:, None], states, states[start_row])
-    lat, lon, height = safe[:, 0], safe[:, 1], safe[:, 2]
-    C_b_n = quat_to_dcm(safe[:, 6:10])
-    roll, pitch, yaw = dcm_to_euler(C_b_n)
-    J = euler_error_jacobian(roll, pitch, yaw)
-    att_sigma = np.sqrt(np.einsum("nij,njk,nik->ni", J, np.nan_to_num(att_cov), J))
-    v_e = np.einsum("nij,nj->ni", C_n_e(lat, lon), safe[:, 3:6])
+    (states, pos_var, vel_var, att_cov, valid, angles, att_sigma, ep_row, epoch_sigma, innov, innov_var,
+     status) = run_ins(t, np.ascontiguousarray(inputs.gyro), np.ascontiguousarray(inputs.accel), start_row, x0, P0,
+                       fix_row, fix_lag, np.ascontiguousarray(z_fix), r_fix, np.asarray(cfg.lever_arm_gnss, float),
+                       noise.as_array(cfg), stride, cfg.gate_chi2, MAX_CONSECUTIVE_REJECTS, unit_rpy, aiding,
+                       smooth)
+    roll, pitch, yaw = angles[:, 0], angles[:, 1], angles[:, 2]
+    lat = np.where(valid, states[:, 0], states[start_row, 0])
+    lon = np.where(valid, states[:, 1], states[start_row, 1])
+    height = np.where(valid, states[:, 2], states[start_row, 2])
+    v_e = np.einsum("nij,nj->ni", C_n_e(lat, lon), states[:, 3:6])
     r_e = geodetic_to_ecef(lat, lon, height)
-    for array in (r_e, v_e, att_sigma, pos_var):
+    for array in (r_e, v_e, pos_var):
         array[~valid] = np.nan
     full_status = np.full(len(gnss), -1, dtype=int)
     full_innov = np.full((len(gnss), 3), np.nan)
@@ -228,16 +217,16 @@ def solve_ins(inputs: InsInputs, cfg: ProcessingConfig, smooth: bool = True) -> 
     full_status[use], full_innov[use], full_var[use] = status, innov, innov_var
     full_status[start_fix] = 1
     vel_var[~valid] = np.nan
-    info.update({"vel_var_n": vel_var, "gyro_bias": safe[:, 10:13], "accel_bias": safe[:, 13:16],
-                 "unit_yaw_origin": safe[:, 16], "epoch_rows": ep_row,
-                 "epoch_sigma": np.sqrt(np.diagonal(P_epochs, axis1=1, axis2=2)), "start_row": start_row,
+    info.update({"vel_var_n": vel_var, "gyro_bias": states[:, 10:13], "accel_bias": states[:, 13:16],
+                 "unit_yaw_origin": states[:, 16], "epoch_rows": ep_row,
+                 "epoch_sigma": epoch_sigma, "start_row": start_row,
                  "covariance_stride": stride, "smoothed": smooth})
     return NavSolution(
         method="rts" if smooth else "ekf", time=t, r_e=r_e, v_e=v_e, lat=lat, lon=lon, height=height,
         roll=roll, pitch=pitch, yaw=yaw, pos_var_n=pos_var, att_sigma=att_sigma, valid=valid,
         gnss=GnssUse(time=gnss.time, status=full_status, innovation=full_innov, innovation_var=full_var,
                      line=gnss.line),
-        info=info, att_cov_n=np.where(valid[:, None, None], att_cov, np.nan),
+        info=info, att_cov_n=att_cov,
     )
 
 

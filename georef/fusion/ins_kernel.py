@@ -163,7 +163,7 @@ def _process_noise(q_vel: float, q_att: float, q_bg: float, q_ba: float, q_unit:
 
 @njit(cache=True)
 def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fix, lever, noise, stride,
-                gate_chi2, max_rejects, unit_rpy, unit_aiding):
+                gate_chi2, max_rejects, unit_rpy, unit_aiding, keep_predicted):
     """Forward error-state EKF.
 
     Inputs: row times ``t`` (N,) s; ``gyro`` rad/s and ``accel`` m/s^2 (N, 3) body frame; the start row and
@@ -176,15 +176,17 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
     update row and at least once a second (also in GNSS outages): ``roll_u = roll + e_r``,
     ``pitch_u = pitch + e_p``, ``yaw_u = yaw - d``.
 
-    Returns the nominal state at every row (N, 16) and, per covariance epoch: row, P⁻, P⁺, Φ, the feedback
-    correction; per fix: innovation (NED m), its variance, status (1 used, 0 rejected, 2 forced, -1 unused).
+    Returns the nominal state at every row (N, 20) and, per covariance epoch: row, interval [s], P⁻ (only
+    with ``keep_predicted``; the smoother recomputes it), P⁺, Φ, the feedback correction; per fix: innovation
+    (NED m), its variance, status (1 used, 0 rejected, 2 forced, -1 unused).
     """
     n = t.shape[0]
     m = fix_row.shape[0]
     nav = np.full((n, NS), np.nan)
     max_epochs = (n - start_row) // stride + m + 2
     ep_row = np.zeros(max_epochs, dtype=np.int64)
-    ep_Pm = np.zeros((max_epochs, NX, NX))
+    ep_dT = np.zeros(max_epochs)
+    ep_Pm = np.zeros((max_epochs if keep_predicted else 1, NX, NX))
     ep_Pp = np.zeros((max_epochs, NX, NX))
     ep_Phi = np.zeros((max_epochs, NX, NX))
     ep_dx = np.zeros((max_epochs, NX))
@@ -246,9 +248,11 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
             Fd = F * dT
             Phi = eye + Fd + 0.5 * (Fd @ Fd)
             Q = _process_noise(q_vel, q_att, q_bg, q_ba, q_unit, q_drift, dT)
-            P = Phi @ P @ Phi.T + 0.5 * (Phi @ Q @ Phi.T + Q)
+            P = Phi @ P @ Phi.T + Q
             ep_row[n_ep] = k
-            ep_Pm[n_ep] = P
+            ep_dT[n_ep] = dT
+            if keep_predicted:
+                ep_Pm[n_ep] = P
             ep_Phi[n_ep] = Phi
             dx_total = np.zeros(NX)
             if unit_aiding and (has_fix or t[k] - t_unit >= 1.0):
@@ -326,31 +330,34 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
             x_epoch[:] = x
             t_epoch = t[k]
         nav[k] = x
-    return (nav, ep_row[:n_ep], ep_Pm[:n_ep], ep_Pp[:n_ep], ep_Phi[:n_ep], ep_dx[:n_ep], innov, innov_var,
-            status)
+    return (nav, ep_row[:n_ep], ep_dT[:n_ep], ep_Pm[:n_ep] if keep_predicted else ep_Pm, ep_Pp[:n_ep],
+            ep_Phi[:n_ep], ep_dx[:n_ep], innov, innov_var, status)
 
 
 @njit(cache=True)
-def rts_backward(ep_Pm, ep_Pp, ep_Phi, ep_dx):
-    """RTS smoother over covariance epochs of the closed-loop filter.
+def rts_backward(ep_dT, ep_Pp, ep_Phi, ep_dx, noise):
+    """RTS smoother over covariance epochs of the closed-loop filter, in place.
 
-    Returns per epoch the smoothed error of the post-update nominal (E, 15), of the pre-update nominal
-    (E, 15), and the smoothed covariance (E, 15, 15).
+    ``P⁻_{j+1} = Φ P⁺_j Φ^T + Q`` is recomputed rather than stored, and the smoothed covariance overwrites
+    ``ep_Pp``. Returns per epoch the smoothed error of the post-update nominal (E, NX) and of the pre-update
+    nominal (E, NX); ``ep_Pp`` then holds the smoothed covariances.
     """
-    n_ep = ep_Pm.shape[0]
+    n_ep = ep_Pp.shape[0]
     err_post = np.zeros((n_ep, NX))
     err_pre = np.zeros((n_ep, NX))
-    P_s = np.zeros((n_ep, NX, NX))
-    P_s[n_ep - 1] = ep_Pp[n_ep - 1]
     err_pre[n_ep - 1] = ep_dx[n_ep - 1]
     for j in range(n_ep - 2, -1, -1):
+        Phi = ep_Phi[j + 1]
+        Q = _process_noise(noise[0], noise[1], noise[2], noise[3], noise[6], noise[8], ep_dT[j + 1])
+        P_plus = ep_Pp[j].copy()
+        P_minus = Phi @ P_plus @ Phi.T + Q
         # A = P+_j Phi^T (P-_{j+1})^-1, via a solve with the symmetric P-
-        A = np.linalg.solve(ep_Pm[j + 1], ep_Phi[j + 1] @ ep_Pp[j]).T
+        A = np.linalg.solve(P_minus, Phi @ P_plus).T
         err_post[j] = A @ err_pre[j + 1]
         err_pre[j] = ep_dx[j] + err_post[j]
-        P_s[j] = ep_Pp[j] + A @ (P_s[j + 1] - ep_Pm[j + 1]) @ A.T
-        P_s[j] = 0.5 * (P_s[j] + P_s[j].T)
-    return err_post, err_pre, P_s
+        P_s = P_plus + A @ (ep_Pp[j + 1] - P_minus) @ A.T
+        ep_Pp[j] = 0.5 * (P_s + P_s.T)
+    return err_post, err_pre
 
 
 @njit(cache=True)
@@ -360,30 +367,76 @@ def apply_row_corrections(t, nav, ep_row, err_post, err_pre, P_post, P_pre):
     At epoch j the row carries ``err_post[j]`` and ``P_post[j]``; just before epoch j+1 the error tends to
     ``err_pre[j+1]`` and the covariance to ``P_pre[j+1]``. For the smoother pass its smoothed errors and
     ``P_post = P_pre = P_s``; for the forward filter zero errors, ``P_post = P+`` and ``P_pre = P-``.
-    Returns corrected states (N, 20), position and velocity variances (N, 3) and attitude-error
-    covariances (N, 3, 3).
+    Returns the states (N, 20), corrected in place, position and velocity variances (N, 3) and
+    attitude-error covariances (N, 3, 3).
     """
     n = nav.shape[0]
-    out = nav.copy()
+    out = nav  # corrected in place
     pos_var = np.full((n, 3), np.nan)
     vel_var = np.full((n, 3), np.nan)
     att_cov = np.full((n, 3, 3), np.nan)
     n_ep = ep_row.shape[0]
+    e = np.empty(NX)
     for j in range(n_ep):
         r0 = ep_row[j]
         r1 = ep_row[j + 1] if j + 1 < n_ep else r0 + 1
         for r in range(r0, r1):
-            if r == r0:
-                e = err_post[j]
-                P = P_post[j]
-            else:
-                w = (t[r] - t[r0]) / (t[r1] - t[r0])
-                e = (1.0 - w) * err_post[j] + w * err_pre[j + 1]
-                P = (1.0 - w) * P_post[j] + w * P_pre[j + 1]
+            w = 0.0 if r == r0 else (t[r] - t[r0]) / (t[r1] - t[r0])
+            jn = j + 1 if r != r0 else j
+            # interpolate only what is used: the error, position/velocity variances, attitude covariance
+            for i in range(NX):
+                e[i] = err_post[j, i] if r == r0 else (1.0 - w) * err_post[j, i] + w * err_pre[jn, i]
             correct_state(out[r], e)
             for i in range(3):
-                pos_var[r, i] = P[i, i]
-                vel_var[r, i] = P[3 + i, 3 + i]
+                pos_var[r, i] = (1.0 - w) * P_post[j, i, i] + w * P_pre[jn, i, i]
+                vel_var[r, i] = (1.0 - w) * P_post[j, 3 + i, 3 + i] + w * P_pre[jn, 3 + i, 3 + i]
                 for c in range(3):
-                    att_cov[r, i, c] = P[6 + i, 6 + c]
+                    att_cov[r, i, c] = (1.0 - w) * P_post[j, 6 + i, 6 + c] + w * P_pre[jn, 6 + i, 6 + c]
     return out, pos_var, vel_var, att_cov
+
+
+@njit(cache=True)
+def attitude_outputs(states: np.ndarray, att_cov: np.ndarray, valid: np.ndarray):
+    """Per row: ZYX roll, pitch, yaw [rad] of the body and their 1-sigma from the NED tilt covariance."""
+    n = states.shape[0]
+    angles = np.full((n, 3), np.nan)
+    sigma = np.full((n, 3), np.nan)
+    C = np.empty((3, 3))
+    for r in range(n):
+        if not valid[r]:
+            continue
+        quat_to_dcm(states[r, 6:10], C)
+        roll, pitch, yaw = dcm_to_euler(C)
+        angles[r, 0], angles[r, 1], angles[r, 2] = roll, pitch, yaw
+        J = euler_error_jacobian(C)
+        S = J @ att_cov[r] @ J.T
+        for i in range(3):
+            sigma[r, i] = math.sqrt(max(S[i, i], 0.0))
+    return angles, sigma
+
+
+@njit(cache=True)
+def run_ins(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fix, lever, noise, stride, gate_chi2,
+            max_rejects, unit_rpy, unit_aiding, smooth):
+    """The whole compiled path in one call (one cache load per process): filter, smoother if ``smooth``,
+    per-row corrections and attitude outputs. Returns states (N, 20), position and velocity variances,
+    attitude-error covariances, angles and their sigmas, epoch rows and sigmas, innovations and status."""
+    nav, ep_row, ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, innov, innov_var, status = ekf_forward(
+        t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fix, lever, noise, stride, gate_chi2,
+        max_rejects, unit_rpy, unit_aiding, not smooth)
+    if smooth:
+        err_post, err_pre = rts_backward(ep_dT, ep_Pp, ep_Phi, ep_dx, noise)
+        states, pos_var, vel_var, att_cov = apply_row_corrections(t, nav, ep_row, err_post, err_pre, ep_Pp, ep_Pp)
+    else:
+        zeros = np.zeros((ep_row.shape[0], NX))
+        states, pos_var, vel_var, att_cov = apply_row_corrections(t, nav, ep_row, zeros, zeros, ep_Pp, ep_Pm)
+    valid = np.zeros(t.shape[0], dtype=np.bool_)
+    for r in range(t.shape[0]):
+        valid[r] = not math.isnan(states[r, 0])
+    angles, att_sigma = attitude_outputs(states, att_cov, valid)
+    epoch_sigma = np.empty((ep_row.shape[0], NX))
+    for j in range(ep_row.shape[0]):
+        for i in range(NX):
+            epoch_sigma[j, i] = math.sqrt(max(ep_Pp[j, i, i], 0.0))
+    return (states, pos_var, vel_var, att_cov, valid, angles, att_sigma, ep_row, epoch_sigma, innov, innov_var,
+            status)

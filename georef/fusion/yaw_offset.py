@@ -21,7 +21,8 @@ The model is linear in ``p0, v0, b_n, b`` for a given ``d``. Each window is solv
    ``R(d) v = c v + s J v`` (``J v = [-v_E, v_N]``) makes the model linear, and ``d0 = atan2(s, c)``
    has no quadrant ambiguity;
 2. variable projection: ``d`` minimises the residual of the linear least squares in ``(p0, v0, b_n, b)``,
-   searched within +-15 deg of ``d0``, with Huber reweighting against outliers. The covariance of ``d``
+   by Gauss-Newton from ``d0`` (the linear parameters re-solved exactly at each step), with Huber
+   reweighting against outliers. The covariance of ``d``
    comes from the full Jacobian at the solution, scaled by the a-posteriori variance factor.
 
 Windows slide over the flight; a robust global fit gives the offset and its drift, and a kernel-weighted
@@ -33,8 +34,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.integrate import cumulative_trapezoid
-from scipy.optimize import minimize_scalar
 
 from georef.frames import C_e_n, euler_to_dcm, geodetic_to_ecef, wrap_pi
 
@@ -118,11 +117,17 @@ def _huber_lstsq(design: np.ndarray, obs: np.ndarray, iterations: int = 6) -> tu
     return solution, covariance, weights
 
 
+def _cumulative_trapezoid(values: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Running trapezoid integral along axis 0, starting at 0 (scipy's ``cumulative_trapezoid(initial=0)``)."""
+    steps = 0.5 * (values[1:] + values[:-1]) * np.diff(t)[:, None]
+    return np.concatenate([np.zeros((1, values.shape[1])), np.cumsum(steps, axis=0)])
+
+
 def _double_integral(values: np.ndarray, imu_time: np.ndarray, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Cumulative single and double trapezoid integrals of (N, ...) samples, interpolated to ``at``."""
     flat = values.reshape(len(values), -1)
-    vel = cumulative_trapezoid(flat, imu_time, axis=0, initial=0.0)
-    pos = cumulative_trapezoid(vel, imu_time, axis=0, initial=0.0)
+    vel = _cumulative_trapezoid(flat, imu_time)
+    pos = _cumulative_trapezoid(vel, imu_time)
     interp = [np.stack([np.interp(at, imu_time, x[:, k]) for k in range(flat.shape[1])], -1) for x in (pos, vel)]
     shape = (len(at),) + values.shape[1:]
     return interp[0].reshape(shape), interp[1].reshape(shape)
@@ -143,8 +148,12 @@ def _window_solve(r_n: np.ndarray, tau: np.ndarray, A: np.ndarray, B: np.ndarray
     # 1. linear start: columns p0N p0E v0N v0E bN bE c s
     rows_n = np.stack([one, zero, tau, zero, tau**2 / 2, zero, A[:, 0], -A[:, 1]], -1) / sig[0]
     rows_e = np.stack([zero, one, zero, tau, zero, tau**2 / 2, A[:, 1], A[:, 0]], -1) / sig[1]
-    start, _, _ = _huber_lstsq(np.concatenate([rows_n, rows_e]), obs)
+    start, start_cov, _ = _huber_lstsq(np.concatenate([rows_n, rows_e]), obs)
     d0 = float(np.arctan2(start[7], start[6]))
+    grad = np.array([-start[7], start[6]]) / max(start[6] ** 2 + start[7] ** 2, 1e-12)
+    sigma0 = float(np.sqrt(max(grad @ start_cov[6:, 6:] @ grad, 0.0)))
+    if sigma0 > np.radians(20.0):
+        return float(wrap_pi(d0)), sigma0  # no usable acceleration in this window: not worth refining
 
     # 2. variable projection in d, biases in both frames: columns p0N p0E v0N v0E bN bE bx by
     affine = np.concatenate([np.stack([one, zero, tau, zero, tau**2 / 2, zero], -1) / sig[0],
@@ -157,30 +166,30 @@ def _window_solve(r_n: np.ndarray, tau: np.ndarray, A: np.ndarray, B: np.ndarray
         target = obs - np.concatenate([rotated_A[:, 0] / sig[0], rotated_A[:, 1] / sig[1]])
         return np.concatenate([affine, bias_cols], axis=1), target
 
-    weights = np.ones(2 * n)
-
-    def cost(d: float) -> float:
+    def jacobian_and_residual(d: float, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Full Jacobian [linear columns, d/dd] and residual at d, the linear part solved exactly."""
         design, target = linear_part(d)
         sw = np.sqrt(weights)
         solution, *_ = np.linalg.lstsq(design * sw[:, None], target * sw, rcond=None)
-        return float(weights @ (target - design @ solution) ** 2)
+        residual = target - design @ solution
+        # d/dd R(d) v = R(d + 90 deg) v
+        turned = _rotate(d + np.pi / 2, A - np.einsum("nij,j->ni", B, solution[6:]))
+        jac_d = np.concatenate([turned[:, 0] / sig[0], turned[:, 1] / sig[1]])
+        return np.concatenate([design, jac_d[:, None]], axis=1), residual, solution
 
+    # Gauss-Newton on d (the linear parameters are re-solved exactly at every step), Huber reweighting
+    weights = np.ones(2 * n)
     d = d0
-    for _ in range(3):
-        d = float(minimize_scalar(cost, bounds=(d - np.radians(15), d + np.radians(15)), method="bounded",
-                                  options={"xatol": 1e-7}).x)
-        design, target = linear_part(d)
-        solution, *_ = np.linalg.lstsq(design * np.sqrt(weights)[:, None], target * np.sqrt(weights), rcond=None)
-        residual = np.abs(target - design @ solution)
-        weights = np.where(residual <= HUBER_K, 1.0, HUBER_K / np.maximum(residual, 1e-12))
-    design, target = linear_part(d)
-    solution, *_ = np.linalg.lstsq(design * np.sqrt(weights)[:, None], target * np.sqrt(weights), rcond=None)
-    residual = target - design @ solution
-    # d/dd R(d) v = R(d + 90 deg) v
-    model_h = A - np.einsum("nij,j->ni", B, solution[6:])
-    turned = _rotate(d + np.pi / 2, model_h)
-    jac_d = np.concatenate([turned[:, 0] / sig[0], turned[:, 1] / sig[1]])
-    jacobian = np.concatenate([design, jac_d[:, None]], axis=1)
+    for iteration in range(12):
+        jacobian, residual, _ = jacobian_and_residual(d, weights)
+        sw = np.sqrt(weights)
+        step, *_ = np.linalg.lstsq(jacobian * sw[:, None], residual * sw, rcond=None)
+        d += float(np.clip(step[-1], -0.2, 0.2))
+        if iteration >= 1:
+            weights = np.where(np.abs(residual) <= HUBER_K, 1.0, HUBER_K / np.maximum(np.abs(residual), 1e-12))
+        if abs(step[-1]) < 1e-8 and iteration >= 2:
+            break
+    jacobian, residual, _ = jacobian_and_residual(d, weights)
     normal = jacobian.T @ (jacobian * weights[:, None])
     dof = max(1, 2 * n - jacobian.shape[1])
     variance_factor = max(1.0, float(weights @ residual**2) / dof)

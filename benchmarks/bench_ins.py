@@ -1,0 +1,77 @@
+"""Full-state fusion speed: EKF and EKF+RTS throughput, end-to-end `georef process`, peak memory.
+
+Runs on one core (BLAS and numba threads pinned to 1). For each case it simulates the flight once (kept in
+--folder), then prints IMU epochs per second of the compiled filter and smoother, and the wall time and peak
+RSS of the whole `georef process --method rts` command (Python start-up included, numba cache warm).
+Usage: python benchmarks/bench_ins.py [--cases 15:50 60:200] [--folder /tmp/georef-bench]
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import resource  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from georef.config import load_config  # noqa: E402
+from georef.fusion.ins import inputs_from_pos, solve_ins  # noqa: E402
+from georef.io.pos import read_pos  # noqa: E402
+from georef.sim.files import write_flight  # noqa: E402
+from georef.sim.flight import SimConfig, simulate  # noqa: E402
+from georef.sim.trajectory import FlightPlan  # noqa: E402
+
+
+def ensure_flight(folder: Path, minutes: float, rate: float) -> Path:
+    if not (folder / "POS.txt").exists():
+        start = time.perf_counter()
+        flight = simulate(SimConfig(plan=FlightPlan(duration_s=minutes * 60.0), pos_rate_hz=rate))
+        write_flight(flight, folder)
+        print(f"  simulated and wrote {minutes:g} min at {rate:g} Hz in {time.perf_counter() - start:.1f} s")
+    return folder
+
+
+def child_peak_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--cases", nargs="+", default=["15:50", "60:200"], help="MINUTES:RATE_HZ")
+    parser.add_argument("--folder", type=Path, default=Path("/tmp/georef-bench"))
+    args = parser.parse_args()
+    georef = Path(sys.executable).with_name("georef")
+    for case in args.cases:
+        minutes, rate = (float(x) for x in case.split(":"))
+        folder = ensure_flight(args.folder / f"{minutes:g}min_{rate:g}hz", minutes, rate)
+        print(f"{minutes:g} min at {rate:g} Hz:")
+        cfg = load_config(folder / "flight.toml")
+        log = read_pos(folder / "POS.txt", gnss_rate_hz=1.0)
+        inputs = inputs_from_pos(log)
+        solve_ins(inputs, cfg, smooth=True)  # warm the numba cache
+        for smooth, label in ((False, "EKF"), (True, "EKF+RTS")):
+            start = time.perf_counter()
+            nav = solve_ins(inputs, cfg, smooth=smooth)
+            seconds = time.perf_counter() - start
+            epochs = int(nav.valid.sum())
+            print(f"  {label:<8} {seconds:6.2f} s  {epochs / seconds:>11,.0f} IMU epochs/s (incl. yaw-offset recovery)")
+        walls = []
+        for _ in range(4):  # the first run may refresh the numba cache; the machine's timing is noisy
+            before = time.perf_counter()
+            subprocess.run([str(georef), "process", str(folder / "POS.txt"), str(folder / "Kamera.txt"),
+                            "--config", str(folder / "flight.toml"), "--method", "rts", "-o",
+                            str(folder / "eo.csv"), "--quiet"], check=True)
+            walls.append(time.perf_counter() - before)
+        warm = sorted(walls[1:])
+        print(f"  georef process --method rts: {warm[0]:.2f} s best, {warm[1]:.2f} s median of 3 warm runs end to "
+              f"end (Python start-up included); peak RSS of the children so far {child_peak_mb():.0f} MB")
+
+
+if __name__ == "__main__":
+    main()
