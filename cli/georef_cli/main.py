@@ -55,6 +55,9 @@ def _user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
         except (GeorefError, ValueError, KeyError, OSError) as exc:  # CRSChoiceError is a ValueError
             console.print(f"[bold red]error:[/] {exc}", highlight=False)
             raise typer.Exit(code=2) from None
+        except typer.BadParameter as exc:
+            console.print(f"[bold red]error:[/] {exc.format_message()}", highlight=False)
+            raise typer.Exit(code=2) from None
         except (typer.Exit, typer.Abort, SystemExit, KeyboardInterrupt):
             raise
         except Exception as exc:  # a bug in georef, not in the user's input
