@@ -92,7 +92,7 @@ def test_ekf_beats_axis_in_yaw(monte_carlo):
     assert (wide["ekf"] < wide["axis"]).all()
 
 
-@pytest.mark.parametrize("component", ["north", "east", "up", "roll", "pitch"])
+@pytest.mark.parametrize("component", COMPONENTS)
 def test_rts_sigmas_are_honest(monte_carlo, component):
     """Share of frames whose error lies inside 2 sigma: between 90 % and 98 %; NEES-like rms(z) near 1."""
     _, normalised = monte_carlo
@@ -100,20 +100,6 @@ def test_rts_sigmas_are_honest(monte_carlo, component):
     share = float(np.mean(np.abs(z) <= 2.0))
     assert 0.90 <= share <= 0.98, share
     assert 0.75 <= float(np.sqrt(np.mean(z**2))) <= 1.25
-
-
-def test_rts_yaw_sigma_is_never_overconfident(monte_carlo):
-    _, normalised = monte_carlo
-    z = normalised[:, COMPONENTS.index("yaw")]
-    assert float(np.mean(np.abs(z) <= 2.0)) >= 0.90
-
-
-@pytest.mark.xfail(strict=True, reason="known shortfall: rts yaw sigma is ~15 % conservative (rms error/sigma "
-                                       "0.83); 2-sigma share 98.3 % over seeds 1-20, above the 98 % bound")
-def test_rts_yaw_sigma_share_upper_bound(monte_carlo):
-    _, normalised = monte_carlo
-    z = normalised[:, COMPONENTS.index("yaw")]
-    assert float(np.mean(np.abs(z) <= 2.0)) <= 0.98
 
 
 @pytest.fixture(scope="module")
