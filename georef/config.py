@@ -21,6 +21,8 @@ class ProcessingConfig:
     """Everything ``georef process`` needs besides the input files."""
 
     method: str = "rts"
+    #: roll/pitch from the POS unit ("unit") or recomputed from the raw IMU by the MEKF ("imu")
+    attitude_source: str = "unit"
     #: body-frame lever arm IMU -> GNSS antenna [m], x forward, y right, z down
     lever_arm_gnss: tuple[float, float, float] = (0.0, 0.0, 0.0)
     #: body-frame lever arm IMU -> camera perspective centre [m]
@@ -69,6 +71,8 @@ class ProcessingConfig:
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise ValueError(f"unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
+        if self.attitude_source not in ("unit", "imu"):
+            raise ValueError(f"attitude_source must be 'unit' or 'imu', got {self.attitude_source!r}")
         for name in ("lever_arm_gnss", "lever_arm_camera", "boresight", "gnss_sigma"):
             value = getattr(self, name)
             if len(value) != 3:
@@ -90,7 +94,7 @@ class ProcessingConfig:
 
 #: TOML section -> keys it may hold (all map onto ProcessingConfig fields of the same name).
 _SECTIONS = {
-    "processing": {"method"},
+    "processing": {"method", "attitude_source"},
     "mounting": {"lever_arm_gnss", "lever_arm_camera", "boresight"},
     "gnss": {"gnss_sigma", "gnss_rate_hz"},
     "camera": {"camera_utc_offset"},

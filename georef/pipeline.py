@@ -72,6 +72,27 @@ class ProcessResult:
         }
 
 
+def recompute_unit_tilt(log: PosLog) -> None:
+    """Replace the unit's ROLL and PITCH [deg] by the MEKF's from OMGS/ACCS (``--attitude-source imu``).
+
+    The accelerometer aids only in straight, unaccelerated flight (``|f|`` within 0.1 m/s^2 of g and rotation
+    below 1 deg/s): in a coordinated turn the apparent vertical is not gravity, and the gyros bridge it.
+    The unit's YAW is kept: IACC is resolved on its azimuth reference.
+    """
+    from georef.attitude.mekf import run_mekf
+    from georef.frames import dcm_to_euler
+
+    for role in ("gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z"):
+        if role not in log.data:
+            raise GeorefError(f"{log.path}: --attitude-source imu needs the raw IMU column "
+                              f"{log.column_names.get(role, role)!r}")
+    C_b_n, _, _ = run_mekf(log.time, np.radians(log.vector("gyro")), log.vector("acc"), gyro_noise=0.005,
+                           accel_sigma=0.05, accel_gate=0.1, rate_gate=np.radians(1.0))
+    roll, pitch, _ = dcm_to_euler(C_b_n)
+    log.data["roll"], log.data["pitch"] = np.degrees(roll), np.degrees(pitch)
+    log.notices.append(InputNotice(log.path, [], None, "roll and pitch recomputed from the raw IMU (MEKF)"))
+
+
 def read_exposures(path: Path | str, cfg: ProcessingConfig) -> Exposures:
     """Kamera.txt or the camera's raw log, told apart by the raw log's ``Exposition`` header column."""
     path = Path(path)
@@ -103,6 +124,11 @@ def process(pos_path: Path | str, camera_path: Path | str, cfg: ProcessingConfig
         names = log.column_names
         raise GeorefError(f"{log.path}: no usable GNSS fix (columns {names.get('lat')}, {names.get('lon')}, "
                           f"{names.get('alt')} stay 0 or hold a single value); every method needs GNSS positions")
+
+    if cfg.attitude_source == "imu":
+        say("recomputing roll and pitch from the raw IMU")
+        recompute_unit_tilt(log)
+        cfg = cfg.updated(unit_aiding=False)
 
     start = time.perf_counter()
     say(f"fusing ({cfg.method})")

@@ -111,6 +111,8 @@ def process(
         help="UTC offset of the camera's local clock in hours (raw camera log only), e.g. 2 for UTC+2.")] = None,
     crs: Annotated[str | None, typer.Option(
         help="Projected CRS for easting/northing columns, e.g. EPSG:3765 (HTRS96/TM).")] = None,
+    attitude_source: Annotated[str | None, typer.Option(
+        help="Roll and pitch from the POS unit ('unit', default) or recomputed from the raw IMU ('imu').")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors.")] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Also list every input notice.")] = False,
 ) -> None:
@@ -124,7 +126,7 @@ def process(
         lever_arm_camera=_triple(camera_lever_arm, "--camera-lever-arm", "metres"),
         boresight=_triple(boresight, "--boresight", "degrees"),
         gnss_sigma=_triple(gnss_sigma, "--gnss-sigma", "metres"), gnss_rate_hz=gnss_rate,
-        camera_utc_offset=camera_utc_offset, crs=crs,
+        camera_utc_offset=camera_utc_offset, crs=crs, attitude_source=attitude_source,
     )
     progress, step = _stage_progress(quiet, total=4)
     if progress is not None:
@@ -287,6 +289,39 @@ def fuse(
         named = f" (lines {', '.join(map(str, rejected[:10]))})" if rejected else ""
         out.print(f"{int(nav.valid.sum())} trajectory rows -> {output}; GNSS {len(fixes)} fixes, {used} used, "
                   f"{len(rejected)} rejected{named}; heading from {nav.info.get('heading_source')}")
+
+
+@app.command()
+@_user_errors
+def attitude(
+    imu: Annotated[Path, typer.Option(help="imu.csv: time [s], gyro_x..z [rad/s], acc_x..z [m/s^2], optional "
+                                           "mag_x..z (any unit); body axes forward-right-down.")],
+    method: Annotated[str, typer.Option(help="complementary, kf (angle + gyro-bias Kalman), mekf or ukf.")] = "mekf",
+    output: Annotated[Path, typer.Option("-o", "--output", help="Attitude table to write (CSV, degrees).")] = Path(
+        "attitude.csv"),
+    inclination: Annotated[float, typer.Option(help="Magnetic inclination in degrees (field reference "
+                                                    "[cos I, 0, sin I] in NED).")] = 60.0,
+    gain: Annotated[float, typer.Option(help="Complementary filter: accelerometer weight per sample (0-1).")] = 0.02,
+    gyro_noise: Annotated[float, typer.Option(help="Gyro white noise per sample in rad/s (mekf, ukf).")] = 0.01,
+    accel_sigma: Annotated[float, typer.Option(help="Noise of the normalised gravity direction (unitless, "
+                                                    "~ radians); also the kf's angle sigma.")] = 0.01,
+    alpha: Annotated[float, typer.Option(help="UKF sigma-point spread alpha.")] = 0.01,
+    beta: Annotated[float, typer.Option(help="UKF prior-knowledge beta (2 for Gaussian).")] = 2.0,
+    kappa: Annotated[float, typer.Option(help="UKF secondary scaling kappa.")] = 0.0,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors.")] = False,
+) -> None:
+    """Roll, pitch (and yaw with mekf/ukf) from raw gyro, accelerometer and optional magnetometer data."""
+    from georef.attitude.run import estimate_attitude
+    from georef.io.atomic import atomic_write
+    from georef.io.generic import read_marg_csv
+
+    time_s, gyro, accel, mag, _ = read_marg_csv(imu)
+    table = estimate_attitude(method, time_s, gyro, accel, mag, inclination_deg=inclination, gain=gain,
+                              gyro_noise=gyro_noise, accel_sigma=accel_sigma, alpha=alpha, beta=beta, kappa=kappa)
+    with atomic_write(output) as handle:
+        table.to_csv(handle, index=False, float_format="%.8g", lineterminator="\n")
+    if not quiet:
+        out.print(f"{len(table)} samples -> {output} ({method}{', magnetometer' if mag is not None else ''})")
 
 
 @app.command()

@@ -18,7 +18,10 @@ import math
 import numpy as np
 from numba import njit
 
-from georef.frames.kernels import cross, quat_from_rotvec, quat_mul, quat_normalise, quat_to_dcm
+from georef.attitude.tilt import accel_tilt
+from georef.frames import dcm_to_quat, euler_to_dcm
+from georef.frames import quat_to_dcm as quats_to_dcm
+from georef.frames.kernels import quat_to_dcm
 
 GRAVITY = 9.81
 DOWN = np.array([0.0, 0.0, 1.0])
@@ -56,38 +59,79 @@ def vector_jacobian(q: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return H
 
 
-@njit(cache=True)
-def _rotation(v: np.ndarray) -> np.ndarray:
-    C = np.empty((3, 3))
-    quat_to_dcm(quat_from_rotvec(v), C)
-    return C
+@njit(cache=True, inline="always")
+def _inv3(S: np.ndarray, out: np.ndarray) -> None:
+    a, b, c = S[0, 0], S[0, 1], S[0, 2]
+    d, e, f = S[1, 0], S[1, 1], S[1, 2]
+    g, h, i = S[2, 0], S[2, 1], S[2, 2]
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    out[0, 0], out[0, 1], out[0, 2] = (e * i - f * h) / det, (c * h - b * i) / det, (b * f - c * e) / det
+    out[1, 0], out[1, 1], out[1, 2] = (f * g - d * i) / det, (a * i - c * g) / det, (c * d - a * f) / det
+    out[2, 0], out[2, 1], out[2, 2] = (d * h - e * g) / det, (b * g - a * h) / det, (a * e - b * d) / det
 
 
 @njit(cache=True)
-def _update(q, b, P, y, reference, variance):
-    """One vector measurement update; returns the normalised innovation squared."""
-    H = vector_jacobian(q, reference)
-    z = y - vector_measurement(q, reference)
-    S = H @ P @ H.T + variance * np.eye(3)
-    K = P @ H.T @ np.linalg.inv(S)
-    dx = K @ z
-    P[:, :] = P - K @ S @ K.T
-    P[:, :] = 0.5 * (P + P.T)
-    q[:] = quat_mul(q, quat_from_rotvec(dx[:3]))
-    quat_normalise(q)
+def _update(q, b, P, y, reference, variance, C, H, S, S_inv, K, PHt, dq):
+    """One vector-measurement update in place, with preallocated work arrays (no allocation per step)."""
+    quat_to_dcm(q, C)
+    v0 = C[0, 0] * reference[0] + C[1, 0] * reference[1] + C[2, 0] * reference[2]
+    v1 = C[0, 1] * reference[0] + C[1, 1] * reference[1] + C[2, 1] * reference[2]
+    v2 = C[0, 2] * reference[0] + C[1, 2] * reference[1] + C[2, 2] * reference[2]
+    z0, z1, z2 = y[0] - v0, y[1] - v1, y[2] - v2
+    # H = [[v x], 0]: only the first three columns are non-zero
+    H[0, 0], H[0, 1], H[0, 2] = 0.0, -v2, v1
+    H[1, 0], H[1, 1], H[1, 2] = v2, 0.0, -v0
+    H[2, 0], H[2, 1], H[2, 2] = -v1, v0, 0.0
+    for r in range(6):
+        for c in range(3):
+            PHt[r, c] = P[r, 0] * H[c, 0] + P[r, 1] * H[c, 1] + P[r, 2] * H[c, 2]
+    for r in range(3):
+        for c in range(3):
+            S[r, c] = H[r, 0] * PHt[0, c] + H[r, 1] * PHt[1, c] + H[r, 2] * PHt[2, c]
+        S[r, r] += variance
+    _inv3(S, S_inv)
+    for r in range(6):
+        for c in range(3):
+            K[r, c] = PHt[r, 0] * S_inv[0, c] + PHt[r, 1] * S_inv[1, c] + PHt[r, 2] * S_inv[2, c]
+    # P -= K S K^T = K PHt^T (since S K^T = PHt^T)
+    for r in range(6):
+        for c in range(r, 6):
+            value = P[r, c] - (K[r, 0] * PHt[c, 0] + K[r, 1] * PHt[c, 1] + K[r, 2] * PHt[c, 2])
+            P[r, c] = value
+            P[c, r] = value
+    dx0 = K[0, 0] * z0 + K[0, 1] * z1 + K[0, 2] * z2
+    dx1 = K[1, 0] * z0 + K[1, 1] * z1 + K[1, 2] * z2
+    dx2 = K[2, 0] * z0 + K[2, 1] * z1 + K[2, 2] * z2
     for i in range(3):
-        b[i] += dx[3 + i]
-    return z @ np.linalg.solve(S, z)
+        b[i] += K[3 + i, 0] * z0 + K[3 + i, 1] * z1 + K[3 + i, 2] * z2
+    _right_multiply(q, dx0, dx1, dx2, dq)
+
+
+@njit(cache=True, inline="always")
+def _right_multiply(q: np.ndarray, v0: float, v1: float, v2: float, out: np.ndarray) -> None:
+    """q ← normalise(q ⊗ q(v)) for a rotation vector v, in place (Hamilton product written out)."""
+    angle = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+    w = math.cos(0.5 * angle)
+    f = math.sin(0.5 * angle) / angle if angle > 1e-8 else 0.5 - angle * angle / 48.0
+    x, y, z = f * v0, f * v1, f * v2
+    out[0] = q[0] * w - q[1] * x - q[2] * y - q[3] * z
+    out[1] = q[0] * x + q[1] * w + q[2] * z - q[3] * y
+    out[2] = q[0] * y - q[1] * z + q[2] * w + q[3] * x
+    out[3] = q[0] * z + q[1] * y - q[2] * x + q[3] * w
+    norm = math.sqrt(out[0] ** 2 + out[1] ** 2 + out[2] ** 2 + out[3] ** 2)
+    for i in range(4):
+        q[i] = out[i] / norm
 
 
 @njit(cache=True)
 def mekf(t, gyro, accel, mag, mag_reference, q0, b0, P0, gyro_noise, bias_walk, accel_sigma, mag_sigma,
-         accel_gate, use_mag):
-    """Run the MEKF over all samples.
+         accel_gate, use_mag, rate_gate):
+    """Run the MEKF over all samples (no allocation inside the loop).
 
     ``gyro`` rad/s, ``accel`` m/s^2, ``mag`` any unit (normalised), (N, 3); ``gyro_noise`` [rad/s] per sample,
     ``bias_walk`` [rad/s/sqrt(s)], ``accel_sigma``/``mag_sigma`` unit-vector noise [-]; accelerometer updates
-    are skipped when ``| |f| - g | > accel_gate`` [m/s^2]. Returns quaternions (N, 4), biases (N, 3) and the
+    are skipped when ``| |f| - g | > accel_gate`` [m/s^2] or the rotation rate exceeds ``rate_gate`` [rad/s]
+    (turns, where the apparent vertical is not gravity). Returns quaternions (N, 4), biases (N, 3) and the
     error-state standard deviations (N, 6).
     """
     n = t.shape[0]
@@ -97,35 +141,61 @@ def mekf(t, gyro, accel, mag, mag_reference, q0, b0, P0, gyro_noise, bias_walk, 
     q = q0.copy()
     b = b0.copy()
     P = P0.copy()
-    F = np.eye(6)
-    Q = np.zeros((6, 6))
+    R = np.empty((3, 3))
+    A = np.empty((3, 3))
     y = np.empty(3)
+    C = np.empty((3, 3))
+    H = np.empty((3, 3))
+    S = np.empty((3, 3))
+    S_inv = np.empty((3, 3))
+    K = np.empty((6, 3))
+    PHt = np.empty((6, 3))
+    dq = np.empty(4)
+    step_q = np.empty(4)
     for k in range(n):
         if k > 0:
             dt = t[k] - t[k - 1]
-            w = 0.5 * (gyro[k] + gyro[k - 1]) - b
-            step = w * dt
-            R = _rotation(step)
+            s0 = (0.5 * (gyro[k, 0] + gyro[k - 1, 0]) - b[0]) * dt
+            s1 = (0.5 * (gyro[k, 1] + gyro[k - 1, 1]) - b[1]) * dt
+            s2 = (0.5 * (gyro[k, 2] + gyro[k - 1, 2]) - b[2]) * dt
+            # R(step); F = [[R^T, -dt I], [0, I]]
+            angle = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+            f = math.sin(0.5 * angle) / angle if angle > 1e-8 else 0.5 - angle * angle / 48.0
+            step_q[0], step_q[1], step_q[2], step_q[3] = math.cos(0.5 * angle), f * s0, f * s1, f * s2
+            quat_to_dcm(step_q, R)
+            # P_aa' = R^T P_aa R - dt (R^T P_ab + P_ba R) + dt^2 P_bb ; P_ab' = R^T P_ab - dt P_bb
             for i in range(3):
                 for j in range(3):
-                    F[i, j] = R[j, i]
-                F[i, 3 + i] = -dt
-                Q[i, i] = gyro_noise * gyro_noise * dt * dt
-                Q[3 + i, 3 + i] = bias_walk * bias_walk * dt
-            q = quat_mul(q, quat_from_rotvec(step))
-            quat_normalise(q)
-            P = F @ P @ F.T + Q
+                    A[i, j] = R[0, i] * P[0, j] + R[1, i] * P[1, j] + R[2, i] * P[2, j] - dt * P[3 + i, j]
+            for i in range(3):
+                for j in range(3):
+                    P_ab = R[0, i] * P[0, 3 + j] + R[1, i] * P[1, 3 + j] + R[2, i] * P[2, 3 + j] - dt * P[3 + i, 3 + j]
+                    C[i, j] = P_ab  # temporarily hold the new cross block
+            for i in range(3):
+                for j in range(i, 3):
+                    value = (A[i, 0] * R[0, j] + A[i, 1] * R[1, j] + A[i, 2] * R[2, j]) - dt * C[i, j]
+                    if i == j:
+                        value += gyro_noise * gyro_noise * dt * dt
+                    P[i, j] = value
+                    P[j, i] = value
+            for i in range(3):
+                for j in range(3):
+                    P[i, 3 + j] = C[i, j]
+                    P[3 + j, i] = C[i, j]
+                P[3 + i, 3 + i] += bias_walk * bias_walk * dt
+            _right_multiply(q, s0, s1, s2, dq)
         norm_f = math.sqrt(accel[k, 0] ** 2 + accel[k, 1] ** 2 + accel[k, 2] ** 2)
-        if abs(norm_f - GRAVITY) < accel_gate:
+        rate = math.sqrt(gyro[k, 0] ** 2 + gyro[k, 1] ** 2 + gyro[k, 2] ** 2)
+        if abs(norm_f - GRAVITY) < accel_gate and rate < rate_gate:
             for i in range(3):
                 y[i] = -accel[k, i] / norm_f
-            _update(q, b, P, y, DOWN, accel_sigma * accel_sigma)
+            _update(q, b, P, y, DOWN, accel_sigma * accel_sigma, C, H, S, S_inv, K, PHt, dq)
         if use_mag:
             norm_m = math.sqrt(mag[k, 0] ** 2 + mag[k, 1] ** 2 + mag[k, 2] ** 2)
             if norm_m > 0.0:
                 for i in range(3):
                     y[i] = mag[k, i] / norm_m
-                _update(q, b, P, y, mag_reference, mag_sigma * mag_sigma)
+                _update(q, b, P, y, mag_reference, mag_sigma * mag_sigma, C, H, S, S_inv, K, PHt, dq)
         quats[k] = q
         biases[k] = b
         for i in range(6):
@@ -136,14 +206,11 @@ def mekf(t, gyro, accel, mag, mag_reference, q0, b0, P0, gyro_noise, bias_walk, 
 def run_mekf(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, mag: np.ndarray | None = None,
              mag_reference: np.ndarray | None = None, gyro_noise: float = 0.01, bias_walk: float = 1e-4,
              accel_sigma: float = 0.01, mag_sigma: float = 0.02, accel_gate: float = 0.5,
-             initial_bias_sigma: float = 0.2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             initial_bias_sigma: float = 0.2, rate_gate: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """MEKF with TRIAD initialisation (or accelerometer levelling and yaw 0 without a magnetometer).
 
     Returns ``C_b_n`` (N, 3, 3), gyro biases (N, 3) [rad/s] and error sigmas (N, 6) [rad, rad/s].
     """
-    from georef.frames import dcm_to_quat, euler_to_dcm, quat_to_dcm
-    from georef.attitude.tilt import accel_tilt
-
     t = np.ascontiguousarray(t, float)
     gyro = np.ascontiguousarray(gyro, float)
     accel = np.ascontiguousarray(accel, float)
@@ -162,5 +229,6 @@ def run_mekf(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, mag: np.ndarray
         yaw_sigma = 1e-6  # unobservable without a magnetometer: hold the arbitrary origin
     P0 = np.diag([0.05**2, 0.05**2, yaw_sigma**2] + [initial_bias_sigma**2] * 3)
     quats, biases, sigmas = mekf(t, gyro, accel, mag, np.asarray(mag_reference, float), dcm_to_quat(C0),
-                                 np.zeros(3), P0, gyro_noise, bias_walk, accel_sigma, mag_sigma, accel_gate, use_mag)
-    return quat_to_dcm(quats), biases, sigmas
+                                 np.zeros(3), P0, gyro_noise, bias_walk, accel_sigma, mag_sigma, accel_gate, use_mag,
+                                 rate_gate)
+    return quats_to_dcm(quats), biases, sigmas

@@ -1,7 +1,8 @@
 """Generic inputs for users without an iMAR unit, and the fused trajectory table.
 
 * ``imu.csv``: ``time, gyro_x, gyro_y, gyro_z, acc_x, acc_y, acc_z`` — seconds (any epoch, increasing),
-  rad/s, m/s^2, body axes forward-right-down.
+  rad/s, m/s^2, body axes forward-right-down; optionally ``mag_x, mag_y, mag_z`` (any unit) for
+  ``georef attitude``.
 * ``gnss.csv``: ``time, lat, lon, height`` [+ ``sigma_n, sigma_e, sigma_u``] — degrees, metres, antenna
   position, the IMU's time scale.
 * ``traj.csv`` (written by ``georef fuse``): ``time, lat, lon, height, vn, ve, vd, roll, pitch, yaw`` and
@@ -24,11 +25,19 @@ from georef.io.table import read_table
 
 IMU_COLUMNS = ("time", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
 GNSS_COLUMNS = ("time", "lat", "lon", "height")
+MAG_COLUMNS = ("mag_x", "mag_y", "mag_z")
 
 
 def read_imu_csv(path: Path | str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``imu.csv`` -> time [s], gyro [rad/s] (N, 3), specific force [m/s^2] (N, 3), file lines."""
-    table = read_table(path, dict.fromkeys(IMU_COLUMNS, "float"), required=set(IMU_COLUMNS), sep=",")
+    time, gyro, accel, _, lines = read_marg_csv(path)
+    return time, gyro, accel, lines
+
+
+def read_marg_csv(path: Path | str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
+    """``imu.csv`` with optional ``mag_x, mag_y, mag_z`` -> time, gyro, specific force, field or None, lines."""
+    wanted = dict.fromkeys((*IMU_COLUMNS, *MAG_COLUMNS), "float")
+    table = read_table(path, wanted, required=set(IMU_COLUMNS), sep=",")
     c = table.columns
     check_increasing(table.path, c["time"], table.lines, "time")
     same = np.flatnonzero(np.diff(c["time"]) == 0)
@@ -36,7 +45,12 @@ def read_imu_csv(path: Path | str) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
         raise InputError(table.path, int(table.lines[same[0] + 1]), "time", "repeated time stamp")
     gyro = np.stack([c["gyro_x"], c["gyro_y"], c["gyro_z"]], -1)
     accel = np.stack([c["acc_x"], c["acc_y"], c["acc_z"]], -1)
-    return c["time"], gyro, accel, table.lines
+    present = [name for name in MAG_COLUMNS if name in c]
+    if present and len(present) < 3:
+        missing = [name for name in MAG_COLUMNS if name not in c][0]
+        raise InputError(table.path, 1, missing, "magnetometer columns come as mag_x, mag_y, mag_z together")
+    mag = np.stack([c[name] for name in MAG_COLUMNS], -1) if present else None
+    return c["time"], gyro, accel, mag, table.lines
 
 
 def read_gnss_csv(path: Path | str) -> GnssEpochs:
