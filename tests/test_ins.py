@@ -171,3 +171,16 @@ def test_ekf_and_rts_are_deterministic(tmp_path):
     _, second = _run(tmp_path / "b", SimConfig(seed=5), methods=("rts",))
     np.testing.assert_array_equal(first["rts"].table.drop(columns="flag").to_numpy(float),
                                   second["rts"].table.drop(columns="flag").to_numpy(float))
+
+
+def test_attitude_source_imu_ignores_the_units_angles(tmp_path):
+    """--attitude-source imu: the unit's ROLL/PITCH are replaced by the raw-IMU MEKF's and not fused by rts."""
+    flight = simulate(SimConfig(seed=2))
+    paths = write_flight(flight, tmp_path)
+    cfg = processing_config_for(flight).updated(method="rts", attitude_source="imu")
+    result = process(paths["POS.txt"], paths["Kamera.txt"], cfg)
+    assert result.nav.info["unit_aiding"] is False
+    assert any("recomputed from the raw IMU" in str(n) for n in result.notices)
+    figures = accuracy(frame_errors(result.table, flight.truth_frames))
+    assert figures["roll_rms_deg"] <= 0.03 and figures["pitch_rms_deg"] <= 0.03
+    assert figures["horizontal_rms_m"] <= 0.4
