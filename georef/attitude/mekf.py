@@ -203,13 +203,11 @@ def mekf(t, gyro, accel, mag, mag_reference, q0, b0, P0, gyro_noise, bias_walk, 
     return quats, biases, sigmas
 
 
-def run_mekf(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, mag: np.ndarray | None = None,
-             mag_reference: np.ndarray | None = None, gyro_noise: float = 0.01, bias_walk: float = 1e-4,
-             accel_sigma: float = 0.01, mag_sigma: float = 0.02, accel_gate: float = 0.5,
-             initial_bias_sigma: float = 0.2, rate_gate: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """MEKF with TRIAD initialisation (or accelerometer levelling and yaw 0 without a magnetometer).
+def initial_state(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, mag: np.ndarray | None,
+                  mag_reference: np.ndarray | None, initial_bias_sigma: float) -> tuple:
+    """Contiguous inputs, the starting quaternion and error covariance of the MEKF and the UKF.
 
-    Returns ``C_b_n`` (N, 3, 3), gyro biases (N, 3) [rad/s] and error sigmas (N, 6) [rad, rad/s].
+    TRIAD with a magnetometer; without one, accelerometer levelling and yaw 0 held fixed (unobservable).
     """
     t = np.ascontiguousarray(t, float)
     gyro = np.ascontiguousarray(gyro, float)
@@ -224,11 +222,21 @@ def run_mekf(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, mag: np.ndarray
     else:
         roll, pitch = accel_tilt(accel[:1])
         C0 = euler_to_dcm(roll[0], pitch[0], 0.0)
-        mag = np.zeros((1, 3))
-        mag_reference = np.array([1.0, 0.0, 0.0])
-        yaw_sigma = 1e-6  # unobservable without a magnetometer: hold the arbitrary origin
+        mag, mag_reference, yaw_sigma = np.zeros((1, 3)), np.array([1.0, 0.0, 0.0]), 1e-6
     P0 = np.diag([0.05**2, 0.05**2, yaw_sigma**2] + [initial_bias_sigma**2] * 3)
-    quats, biases, sigmas = mekf(t, gyro, accel, mag, np.asarray(mag_reference, float), dcm_to_quat(C0),
-                                 np.zeros(3), P0, gyro_noise, bias_walk, accel_sigma, mag_sigma, accel_gate, use_mag,
-                                 rate_gate)
+    return t, gyro, accel, mag, np.asarray(mag_reference, float), dcm_to_quat(C0), P0, use_mag
+
+
+def run_mekf(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, mag: np.ndarray | None = None,
+             mag_reference: np.ndarray | None = None, gyro_noise: float = 0.01, bias_walk: float = 1e-4,
+             accel_sigma: float = 0.01, mag_sigma: float = 0.02, accel_gate: float = 0.5,
+             initial_bias_sigma: float = 0.2, rate_gate: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """MEKF with TRIAD initialisation (or accelerometer levelling and yaw 0 without a magnetometer).
+
+    Returns ``C_b_n`` (N, 3, 3), gyro biases (N, 3) [rad/s] and error sigmas (N, 6) [rad, rad/s].
+    """
+    t, gyro, accel, mag, mag_reference, q0, P0, use_mag = initial_state(t, gyro, accel, mag, mag_reference,
+                                                                        initial_bias_sigma)
+    quats, biases, sigmas = mekf(t, gyro, accel, mag, mag_reference, q0, np.zeros(3), P0, gyro_noise, bias_walk,
+                                 accel_sigma, mag_sigma, accel_gate, use_mag, rate_gate)
     return quats_to_dcm(quats), biases, sigmas

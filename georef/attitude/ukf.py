@@ -14,9 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
-from georef.attitude.mekf import DOWN, GRAVITY, triad
-from georef.attitude.tilt import accel_tilt
-from georef.frames import dcm_to_quat, euler_to_dcm
+from georef.attitude.mekf import DOWN, GRAVITY, initial_state
 from georef.frames import quat_to_dcm as quats_to_dcm
 from georef.frames.kernels import quat_from_rotvec, quat_mul, quat_normalise, quat_to_dcm
 
@@ -156,22 +154,8 @@ def run_ukf(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, mag: np.ndarray 
             initial_bias_sigma: float = 0.2, alpha: float = 0.01, beta: float = 2.0,
             kappa: float = 0.0, rate_gate: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Attitude UKF with TRIAD start; returns ``C_b_n`` (N, 3, 3), gyro biases (N, 3), error sigmas (N, 6)."""
-    t = np.ascontiguousarray(t, float)
-    gyro = np.ascontiguousarray(gyro, float)
-    accel = np.ascontiguousarray(accel, float)
-    use_mag = mag is not None
-    if use_mag:
-        if mag_reference is None:
-            raise ValueError("a magnetometer needs its NED reference direction (mag_reference)")
-        C0 = triad(accel[0], mag[0], mag_reference)
-        mag = np.ascontiguousarray(mag, float)
-        yaw_sigma = 0.1
-    else:
-        roll, pitch = accel_tilt(accel[:1])
-        C0 = euler_to_dcm(roll[0], pitch[0], 0.0)
-        mag, mag_reference, yaw_sigma = np.zeros((1, 3)), np.array([1.0, 0.0, 0.0]), 1e-6
-    P0 = np.diag([0.05**2, 0.05**2, yaw_sigma**2] + [initial_bias_sigma**2] * 3)
-    quats, biases, sigmas = ukf(t, gyro, accel, mag, np.asarray(mag_reference, float), dcm_to_quat(C0), np.zeros(3),
-                                P0, gyro_noise, bias_walk, accel_sigma, mag_sigma, accel_gate, use_mag, alpha, beta,
-                                kappa, rate_gate)
+    t, gyro, accel, mag, mag_reference, q0, P0, use_mag = initial_state(t, gyro, accel, mag, mag_reference,
+                                                                        initial_bias_sigma)
+    quats, biases, sigmas = ukf(t, gyro, accel, mag, mag_reference, q0, np.zeros(3), P0, gyro_noise, bias_walk,
+                                accel_sigma, mag_sigma, accel_gate, use_mag, alpha, beta, kappa, rate_gate)
     return quats_to_dcm(quats), biases, sigmas

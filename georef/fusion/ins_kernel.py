@@ -162,6 +162,18 @@ def _process_noise(q_vel: float, q_att: float, q_bg: float, q_ba: float, q_unit:
 
 
 @njit(cache=True)
+def _apply_update(x, P, H, z, R, S_inv, C, dx_total):
+    """Kalman update in Joseph form, fed back into the nominal state; returns the new covariance."""
+    K = P @ H.T @ S_inv
+    dx = K @ z
+    IKH = np.eye(P.shape[0]) - K @ H
+    correct_state(x, dx)
+    quat_to_dcm(x[6:10], C)
+    dx_total += dx
+    return IKH @ P @ IKH.T + K @ R @ K.T
+
+
+@njit(cache=True)
 def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fix, lever, noise, stride,
                 gate_chi2, max_rejects, unit_rpy, unit_aiding, keep_predicted):
     """Forward error-state EKF.
@@ -273,13 +285,7 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
                 S = H @ P @ H.T + R
                 S_inv = np.linalg.inv(S)
                 if z @ S_inv @ z <= gate_chi2:
-                    K = P @ H.T @ S_inv
-                    dx = K @ z
-                    IKH = eye - K @ H
-                    P = IKH @ P @ IKH.T + K @ R @ K.T
-                    correct_state(x, dx)
-                    quat_to_dcm(x[6:10], C)
-                    dx_total += dx
+                    P = _apply_update(x, P, H, z, R, S_inv, C, dx_total)
             while k_fix < m and fix_row[k_fix] == k:
                 # predicted antenna position at the fix time, innovation in NED metres
                 M, N = radii(x[0])
@@ -309,13 +315,7 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
                 if d2 <= gate_chi2 or rejects >= max_rejects:
                     status[k_fix] = 1 if d2 <= gate_chi2 else 2
                     rejects = 0
-                    K = P @ H.T @ S_inv
-                    dx = K @ z
-                    IKH = eye - K @ H
-                    P = IKH @ P @ IKH.T + K @ R @ K.T
-                    correct_state(x, dx)
-                    quat_to_dcm(x[6:10], C)
-                    dx_total += dx
+                    P = _apply_update(x, P, H, z, R, S_inv, C, dx_total)
                 else:
                     status[k_fix] = 0
                     rejects += 1
