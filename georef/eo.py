@@ -1,7 +1,8 @@
 """Exterior orientation of every frame: lever arm and boresight applied, sigmas propagated, flags set.
 
 Columns (``docs/formats.md``): ``frame, time, lat, lon, height, roll, pitch, yaw, sigma_n, sigma_e,
-sigma_u, sigma_roll, sigma_pitch, sigma_yaw, track, yaw_minus_track`` [+ ``easting, northing``], ``flag``.
+sigma_u, sigma_roll, sigma_pitch, sigma_yaw, track, yaw_minus_track`` [+ ``easting, northing, omega, phi,
+kappa`` with a CRS], ``flag``.
 Angles in degrees (yaw and track in [0, 360)), heights ellipsoidal [m], sigmas 1-sigma in m and deg.
 Roll, pitch and yaw are the ZYX Euler angles of the *camera* frame relative to local NED.
 """
@@ -91,13 +92,18 @@ def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpoc
     table = pd.DataFrame({"frame": exposures.frame, "time": exposures.time, **out})
     if cfg.crs:
         from georef.frames.mapping import MapProjection  # pyproj only when a CRS is asked for
+        from georef.frames.photogrammetry import image_to_map, rotation_to_opk
 
         projection = MapProjection(cfg.crs)
-        easting = np.full(n, np.nan)
-        northing = np.full(n, np.nan)
+        grid = {name: np.full(n, np.nan) for name in ("easting", "northing", "omega", "phi", "kappa")}
         if inside.any():
-            easting[inside], northing[inside] = projection.forward(out["lat"][inside], out["lon"][inside])
-        table["easting"] = easting
-        table["northing"] = northing
+            lat_deg, lon_deg = out["lat"][inside], out["lon"][inside]
+            grid["easting"][inside], grid["northing"][inside] = projection.forward(lat_deg, lon_deg)
+            convergence, _ = projection.convergence_and_scale(lat_deg, lon_deg)
+            omega, phi, kappa = rotation_to_opk(image_to_map(C_c_n, convergence))
+            grid["omega"][inside], grid["phi"][inside] = np.degrees(omega), np.degrees(phi)
+            grid["kappa"][inside] = np.degrees(kappa)
+        for name, values in grid.items():
+            table[name] = values
     table["flag"] = _flags(exposures, states, gnss, outage_min_s)
     return table

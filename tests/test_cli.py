@@ -30,8 +30,17 @@ def test_process_bundled_flight(tmp_path):
     assert len(table) == len(kamera)
     for column in ("frame", "time", "lat", "lon", "height", "roll", "pitch", "yaw", "sigma_n", "sigma_e",
                    "sigma_u", "sigma_roll", "sigma_pitch", "sigma_yaw", "track", "yaw_minus_track",
-                   "easting", "northing", "flag"):
+                   "easting", "northing", "omega", "phi", "kappa", "flag"):
         assert column in table.columns
+    # omega/phi/kappa are the same rotation as the camera's roll/pitch/yaw, in the grid frame
+    from georef.frames import euler_to_dcm
+    from georef.frames.mapping import MapProjection
+    from georef.frames.photogrammetry import image_to_map, opk_to_rotation
+
+    gamma, _ = MapProjection("EPSG:3765").convergence_and_scale(table["lat"], table["lon"])
+    R_from_euler = image_to_map(euler_to_dcm(*np.radians(table[["roll", "pitch", "yaw"]].to_numpy().T)), gamma)
+    R_from_opk = opk_to_rotation(*np.radians(table[["omega", "phi", "kappa"]].to_numpy().T))
+    np.testing.assert_allclose(R_from_opk, R_from_euler, atol=2e-7)
     assert table["flag"].str.contains("GNSS outage").any()
     truth = pd.read_csv(DATA / "truth.csv")
     figures = accuracy(frame_errors(table, truth))

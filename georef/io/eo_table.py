@@ -11,7 +11,8 @@ from georef.io.atomic import atomic_write
 #: decimals per column: ~0.1 mm in angles-of-latitude, 1 mm in heights, 1e-6 deg in angles
 _FORMATS = {"time": 3, "lat": 10, "lon": 10, "height": 4, "roll": 6, "pitch": 6, "yaw": 6,
             "sigma_n": 4, "sigma_e": 4, "sigma_u": 4, "sigma_roll": 5, "sigma_pitch": 5, "sigma_yaw": 5,
-            "track": 5, "yaw_minus_track": 5, "easting": 4, "northing": 4}
+            "track": 5, "yaw_minus_track": 5, "easting": 4, "northing": 4, "omega": 6, "phi": 6,
+            "kappa": 6}
 
 
 def write_eo_csv(table: pd.DataFrame, path: Path | str) -> Path:
