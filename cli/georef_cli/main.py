@@ -94,7 +94,9 @@ def process(
     pos: Annotated[Path, typer.Argument(help="POS unit log (POS.txt, tab separated, iMAR layout).")],
     camera: Annotated[Path, typer.Argument(help="Exposure times: Kamera.txt, or the camera's raw log "
                                                 "(needs --camera-utc-offset).")],
-    output: Annotated[Path, typer.Option("-o", "--output", help="EO table to write (CSV).")] = Path("eo.csv"),
+    output: Annotated[Path, typer.Option("-o", "--output", help="EO table to write.")] = Path("eo.csv"),
+    output_format: Annotated[str, typer.Option("--format", help="csv (the EO table), metashape, pix4d, odm (geo.txt), "
+                                               "parge, geojson or kml; metashape/pix4d/odm need --crs.")] = "csv",
     config: Annotated[Path | None, typer.Option("--config", help="flight.toml with any of these settings; "
                                                 "command-line options win.")] = None,
     method: Annotated[str | None, typer.Option(help=f"Fusion method: {', '.join(METHODS)}.")] = None,
@@ -117,7 +119,7 @@ def process(
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Also list every input notice.")] = False,
 ) -> None:
     """Turn POS.txt + exposure times into the exterior orientation of every frame."""
-    from georef.io.eo_table import write_eo_csv
+    from georef.io.exports import NEEDS_CRS, write_export
     from georef.pipeline import process as run
 
     cfg = load_config(config) if config else ProcessingConfig()
@@ -128,15 +130,13 @@ def process(
         gnss_sigma=_triple(gnss_sigma, "--gnss-sigma", "metres"), gnss_rate_hz=gnss_rate,
         camera_utc_offset=camera_utc_offset, crs=crs, attitude_source=attitude_source,
     )
+    if output_format in NEEDS_CRS and not cfg.crs:
+        raise typer.BadParameter(f"--format {output_format} writes projected coordinates: give --crs EPSG:xxxx")
     progress, step = _stage_progress(quiet, total=4)
-    if progress is not None:
-        with progress:
-            result = run(pos, camera, cfg, progress=step)
-            step("writing table")
-            write_eo_csv(result.table, output)
-    else:
-        result = run(pos, camera, cfg)
-        write_eo_csv(result.table, output)
+    with progress if progress is not None else contextlib.nullcontext():
+        result = run(pos, camera, cfg, progress=step)
+        step("writing table")
+        write_export(result.table, output, output_format, cfg.crs)
     if not quiet:
         _print_summary(result, output, verbose)
 
