@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test lint bench clean browser
 
 $(STAMP): pyproject.toml
 	test -d $(VENV) || $(PYTHON) -m venv $(VENV)
@@ -16,7 +16,13 @@ demo: $(STAMP)
 	$(BIN)/georef process data/POS.txt data/Kamera.txt --config data/flight.toml -o out/eo.csv
 	$(BIN)/georef evaluate out/eo.csv data/truth.csv
 
-test: $(STAMP)
+# The report test renders in Debian's headless Chromium; install it when missing (root, as on CI).
+browser:
+	@command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || \
+	  { (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver) \
+	    >/dev/null 2>&1 || echo "could not install chromium: the report test will say so"; }
+
+test: $(STAMP) browser
 	$(BIN)/ruff check georef cli tests benchmarks examples
 	$(BIN)/python -m pytest -q
 

@@ -115,6 +115,8 @@ def process(
         help="Projected CRS for easting/northing columns, e.g. EPSG:3765 (HTRS96/TM).")] = None,
     attitude_source: Annotated[str | None, typer.Option(
         help="Roll and pitch from the POS unit ('unit', default) or recomputed from the raw IMU ('imu').")] = None,
+    report: Annotated[Path | None, typer.Option(
+        help="Also write an HTML quality report here (PNG plots beside it).")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors.")] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Also list every input notice.")] = False,
 ) -> None:
@@ -132,11 +134,16 @@ def process(
     )
     if output_format in NEEDS_CRS and not cfg.crs:
         raise typer.BadParameter(f"--format {output_format} writes projected coordinates: give --crs EPSG:xxxx")
-    progress, step = _stage_progress(quiet, total=4)
+    progress, step = _stage_progress(quiet, total=5 if report is not None else 4)
     with progress if progress is not None else contextlib.nullcontext():
         result = run(pos, camera, cfg, progress=step)
         step("writing table")
         write_export(result.table, output, output_format, cfg.crs)
+        if report is not None:
+            from georef.report import write_report
+
+            step("writing report")
+            write_report(result, report)
     if not quiet:
         _print_summary(result, output, verbose)
 

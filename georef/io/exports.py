@@ -6,9 +6,11 @@ followed (checked 2026-11):
 * ``metashape`` — a reference CSV for Agisoft Metashape's *Import Reference* (Metashape 2.x user manual,
   "Loading camera positions"): label, projected X/Y/Z, omega/phi/kappa (choose *Rotation angles: Omega,
   Phi, Kappa* in the Reference settings) and their accuracies; a ``#`` comment line names the columns.
-* ``pix4d`` — PIX4Dmapper's image geolocation and orientation file in projected coordinates:
-  ``imagename,X,Y,Z,omega,phi,kappa,accuracy_horz,accuracy_vert`` with a ``#`` header comment (Pix4D support
-  article "Input files - PIX4Dmapper").
+* ``pix4d`` — PIX4Dmapper's image geolocation and orientation file (Image Properties Editor > Image
+  Geolocation > From File, "X, Y, Z, Omega, Phi, Kappa" with accuracies; Pix4D support articles "Input files -
+  PIX4Dmapper" and "Image Geolocation - PIX4Dmapper"): ``imagename,X,Y,Z,omega,phi,kappa,accuracy_horz,
+  accuracy_vert`` in projected coordinates, a ``#`` comment line first. PIX4Dmatic's own import format uses
+  yaw/pitch/roll in a camera convention it defines differently; it is not written.
 * ``odm`` — OpenDroneMap ``geo.txt`` (ODM docs, "Image Geolocation Files", ODM ≥ 2.0): the first line the
   projection (an EPSG code), then ``image_name geo_x geo_y geo_z yaw pitch roll horz_accuracy vert_accuracy``.
   ODM uses the angles only for radiometric calibration and does not document their convention, so they are
