@@ -3,9 +3,11 @@
 Each writer takes the EO table of :mod:`georef.eo` (degrees, metres) and writes atomically. Documentation
 followed (checked 2026-11):
 
-* ``metashape`` — a reference CSV for Agisoft Metashape's *Import Reference* (Metashape 2.x user manual,
-  "Loading camera positions"): label, projected X/Y/Z, omega/phi/kappa (choose *Rotation angles: Omega,
-  Phi, Kappa* in the Reference settings) and their accuracies; a ``#`` comment line names the columns.
+* ``metashape`` — a reference CSV for Agisoft Metashape's *Import Reference* (user manual 1.7-2.1,
+  "Loading camera positions"/"Referencing"; the import dialog assigns columns by number and skips ``#``
+  lines): label, projected X/Y/Z, omega/phi/kappa (choose *Rotation angles: Omega, Phi, Kappa* in the
+  Reference settings) and their accuracies; a ``#`` comment line names the columns. Not checked against a
+  running Metashape.
 * ``pix4d`` — PIX4Dmapper's image geolocation and orientation file (Image Properties Editor > Image
   Geolocation > From File, "X, Y, Z, Omega, Phi, Kappa" with accuracies; Pix4D support articles "Input files -
   PIX4Dmapper" and "Image Geolocation - PIX4Dmapper"): ``imagename,X,Y,Z,omega,phi,kappa,accuracy_horz,
