@@ -184,3 +184,26 @@ def test_attitude_source_imu_ignores_the_units_angles(tmp_path):
     figures = accuracy(frame_errors(result.table, flight.truth_frames))
     assert figures["roll_rms_deg"] <= 0.03 and figures["pitch_rms_deg"] <= 0.03
     assert figures["horizontal_rms_m"] <= 0.4
+
+
+@pytest.mark.parametrize("case", ["midnight", "no_unit_attitude", "consumer_imu"])
+def test_rts_edge_cases(tmp_path, case):
+    """Across midnight; a POS log without the unit's attitude (levelling + GNSS-track heading); a consumer IMU."""
+    sim = SimConfig(seed=3, start_utc_s=86400 - 60 if case == "midnight" else 24513,
+                    imu_preset="mems-consumer" if case == "consumer_imu" else "mems-ivru")
+    flight = simulate(sim)
+    paths = write_flight(flight, tmp_path)
+    if case == "no_unit_attitude":
+        frame = pd.read_csv(paths["POS.txt"], sep="\t", dtype=str)
+        frame.drop(columns=["IACC_X", "IACC_Y", "IACC_Z", "ROLL", "PITCH", "YAW"]).to_csv(paths["POS.txt"], sep="\t",
+                                                                                         index=False)
+    result = process(paths["POS.txt"], paths["Kamera.txt"], processing_config_for(flight).updated(method="rts"))
+    figures = accuracy(frame_errors(result.table, flight.truth_frames))
+    assert result.table["lat"].notna().all()
+    assert figures["horizontal_rms_m"] <= 0.4 and figures["yaw_rms_deg"] <= 0.15
+    assert figures["roll_rms_deg"] <= 0.03 and figures["pitch_rms_deg"] <= 0.03
+    if case == "midnight":
+        assert result.table["time"].max() > 86400.0
+        assert any("midnight" in str(n) for n in result.notices)
+    if case == "no_unit_attitude":
+        assert result.nav.info["heading_source"] == "GNSS track"
