@@ -333,6 +333,52 @@ def attitude(
 
 @app.command()
 @_user_errors
+def batch(
+    source: Annotated[Path, typer.Argument(help="A folder of flight folders (POS.txt, Kamera.txt, flight.toml each) "
+                                                "or a manifest CSV with columns flight, pos, camera[, config].")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Output folder: <flight>/eo.csv, <flight>/georef.log, "
+                                                                 "batch_summary.csv.")] = Path("batch_out"),
+    method: Annotated[str | None, typer.Option(help="Override every flight's method (rts, ekf, axis).")] = None,
+    scheduler: Annotated[str | None, typer.Option(help="Dask scheduler address, e.g. tcp://host:8786; default: a "
+                                                       "LocalCluster on this machine.")] = None,
+    workers: Annotated[int, typer.Option(help="LocalCluster worker processes (one thread each).")] = 2,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors.")] = False,
+) -> None:
+    """Process many flights, one Dask task each; a failed flight is reported and the others go on."""
+    from georef.batch import discover, run_batch
+
+    jobs = discover(source)
+    if quiet:
+        summary = run_batch(jobs, output, method=method, scheduler=scheduler, workers=workers)
+    else:
+        progress = Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
+                            TextColumn("{task.completed}/{task.total} flights"), TimeElapsedColumn(),
+                            console=console, transient=True)
+        with progress:
+            task = progress.add_task("processing flights", total=len(jobs))
+
+            def done(row: dict) -> None:
+                progress.advance(task)
+                progress.update(task, description=f"{row['flight']}: {row['status']}")
+
+            summary = run_batch(jobs, output, method=method, scheduler=scheduler, workers=workers, on_done=done)
+    if not quiet:
+        table = Table(title=f"georef batch -> {output}/batch_summary.csv", title_justify="left")
+        for column in ("flight", "status", "method", "frames", "rejected_fixes", "runtime_s", "message"):
+            table.add_column(column)
+        for row in summary.itertuples(index=False):
+            table.add_row(*(str(getattr(row, c)) if getattr(row, c) is not None else "" for c in
+                            ("flight", "status", "method", "frames", "rejected_fixes", "runtime_s", "message")))
+        out.print(table)
+    failed = summary[summary["status"] != "ok"]
+    for row in failed.itertuples(index=False):
+        console.print(f"[bold red]failed:[/] {row.flight}: {row.message}", highlight=False)
+    if len(failed) == len(summary):
+        raise typer.Exit(code=2)
+
+
+@app.command()
+@_user_errors
 def info(
     pos: Annotated[Path, typer.Argument(help="POS unit log (POS.txt).")],
     gnss_rate: Annotated[float | None, typer.Option(help="GNSS fix rate in Hz, if known.")] = 1.0,

@@ -1,0 +1,153 @@
+"""Batch processing of many flights on Dask distributed (``georef batch``).
+
+Input: a folder of flight folders (each with ``POS.txt``, ``Kamera.txt`` or a raw camera log, and optionally
+``flight.toml``), or a manifest CSV with columns ``flight, pos, camera[, config]`` (paths relative to the
+manifest). Each flight is one task: by default on a ``LocalCluster`` of worker processes on this machine, or
+on an existing cluster given by its scheduler address. A failed flight is reported with its reason and the
+others go on. Every flight gets ``<out>/<flight>/eo.csv`` and ``<out>/<flight>/georef.log``; the batch writes
+``<out>/batch_summary.csv``.
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from georef.io.atomic import atomic_write
+from georef.io.errors import InputError
+
+SUMMARY_COLUMNS = ["flight", "status", "method", "frames", "frames_flagged", "gnss_epochs", "rejected_fixes",
+                   "innovation_mean_nis", "innovation_share_over_gate", "runtime_s", "message"]
+
+
+@dataclass(frozen=True)
+class FlightJob:
+    """One flight to process: its name and input files."""
+
+    flight: str
+    pos: str
+    camera: str
+    config: str | None = None
+
+
+def discover(source: Path | str) -> list[FlightJob]:
+    """Flights in a folder of flight folders, or listed in a manifest CSV."""
+    source = Path(source)
+    if source.is_file():
+        manifest = pd.read_csv(source, dtype=str, keep_default_na=False)
+        missing = [c for c in ("flight", "pos", "camera") if c not in manifest.columns]
+        if missing:
+            raise InputError(source, 1, missing[0], "manifest needs columns flight, pos, camera[, config]")
+        base = source.parent
+
+        def resolve(value: str) -> str:
+            return str(value if Path(value).is_absolute() else base / value)
+
+        return [FlightJob(row.flight, resolve(row.pos), resolve(row.camera),
+                          resolve(row.config) if getattr(row, "config", "") else None)
+                for row in manifest.itertuples(index=False)]
+    if not source.is_dir():
+        raise InputError(source, None, None, "neither a folder of flights nor a manifest CSV")
+    jobs = []
+    for folder in sorted(p for p in source.iterdir() if p.is_dir()):
+        camera = next((folder / name for name in ("Kamera.txt", "camera.txt") if (folder / name).exists()), None)
+        config = folder / "flight.toml"
+        jobs.append(FlightJob(folder.name, str(folder / "POS.txt"), str(camera or folder / "Kamera.txt"),
+                              str(config) if config.exists() else None))
+    if not jobs:
+        raise InputError(source, None, None, "no flight folders found (each needs POS.txt and Kamera.txt)")
+    return jobs
+
+
+def process_flight(job: FlightJob, output_root: str, method: str | None = None) -> dict:
+    """Process one flight (runs on a worker); never raises: failures come back as a status row."""
+    from georef.config import ProcessingConfig, load_config
+    from georef.io.eo_table import write_eo_csv
+    from georef.pipeline import process
+
+    start = time.perf_counter()
+    out = Path(output_root) / job.flight
+    out.mkdir(parents=True, exist_ok=True)
+    row: dict = dict.fromkeys(SUMMARY_COLUMNS)
+    row.update(flight=job.flight, status="failed", method=method or "")
+    log_lines = [f"flight {job.flight}", f"POS {job.pos}", f"camera {job.camera}", f"config {job.config}"]
+    try:
+        cfg = load_config(job.config) if job.config else ProcessingConfig()
+        if method:
+            cfg = cfg.updated(method=method)
+        result = process(job.pos, job.camera, cfg)
+        write_eo_csv(result.table, out / "eo.csv")
+        summary = result.summary()
+        gnss = result.nav.gnss
+        used = gnss.status >= 1
+        nis = gnss.normalised_innovation_sq[used]
+        row.update(status="ok", method=cfg.method, frames=summary["frames_written"],
+                   frames_flagged=summary["frames_flagged"], gnss_epochs=summary["gnss_epochs"],
+                   rejected_fixes=len(summary["gnss_rejected_lines"]),
+                   innovation_mean_nis=float(np.mean(nis)) if len(nis) else float("nan"),
+                   innovation_share_over_gate=float(np.mean(gnss.normalised_innovation_sq[gnss.status >= 0]
+                                                            > cfg.gate_chi2)) if len(nis) else float("nan"),
+                   message="")
+        log_lines += [f"{key}: {value}" for key, value in summary.items()]
+        log_lines += [f"notice: {notice}" for notice in result.notices]
+    except Exception as exc:  # noqa: BLE001 - a failed flight is reported, the batch goes on
+        row["message"] = f"{type(exc).__name__}: {exc}"
+        log_lines.append(f"FAILED: {row['message']}")
+        if not isinstance(exc, InputError | ValueError):
+            log_lines.append(traceback.format_exc())
+    row["runtime_s"] = round(time.perf_counter() - start, 3)
+    log_lines.append(f"status {row['status']} in {row['runtime_s']} s")
+    with atomic_write(out / "georef.log") as handle:
+        handle.write("\n".join(log_lines) + "\n")
+    return row
+
+
+def run_batch(jobs: list[FlightJob], output_root: Path | str, method: str | None = None,
+              scheduler: str | None = None, workers: int = 2,
+              on_done: Callable[[dict], None] | None = None) -> pd.DataFrame:
+    """Process every job on Dask distributed; returns (and writes) the summary table.
+
+    ``scheduler`` is an address such as ``tcp://host:8786``; without it a ``LocalCluster`` of ``workers``
+    single-threaded processes is started and closed here.
+    """
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    output_root = Path(output_root)
+    output_root.mkdir(parents=True, exist_ok=True)
+    cluster = None
+    if scheduler is None:
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        client = Client(cluster)
+    else:
+        client = Client(scheduler)
+    rows = []
+    try:
+        futures = [client.submit(process_flight, job, str(output_root), method, key=f"flight-{job.flight}",
+                                 pure=False) for job in jobs]
+        for future in as_completed(futures):
+            try:
+                row = future.result()
+            except Exception as exc:  # noqa: BLE001 - a worker that died
+                flight = future.key.removeprefix("flight-") if isinstance(future.key, str) else str(future.key)
+                row = dict.fromkeys(SUMMARY_COLUMNS)
+                row.update(flight=flight, status="failed", message=f"worker error: {exc}")
+            rows.append(row)
+            if on_done is not None:
+                on_done(row)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    order = {job.flight: i for i, job in enumerate(jobs)}
+    summary = pd.DataFrame(rows, columns=SUMMARY_COLUMNS).sort_values("flight", key=lambda s: s.map(order))
+    for column in ("frames", "frames_flagged", "gnss_epochs", "rejected_fixes"):
+        summary[column] = summary[column].astype("Int64")
+    with atomic_write(output_root / "batch_summary.csv") as handle:
+        summary.to_csv(handle, index=False, lineterminator="\n")
+    return summary.reset_index(drop=True)

@@ -1,0 +1,73 @@
+"""`georef batch` on a real Dask LocalCluster: every good flight written, a broken one reported."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from georef_cli.main import app
+from typer.testing import CliRunner
+
+from georef.batch import discover, run_batch
+from georef.io.errors import InputError
+from georef.sim.files import write_flight
+from georef.sim.flight import SimConfig, simulate
+from georef.sim.trajectory import FlightPlan
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("flights")
+    for seed in (1, 2, 3):
+        write_flight(simulate(SimConfig(seed=seed, plan=FlightPlan(duration_s=90.0))), root / f"flight{seed}")
+    broken = root / "broken"
+    shutil.copytree(root / "flight1", broken)
+    lines = (broken / "POS.txt").read_text().splitlines(keepends=True)
+    cells = lines[499].split("\t")
+    cells[1] = "12..5"
+    lines[499] = "\t".join(cells)
+    (broken / "POS.txt").write_text("".join(lines))
+    return root
+
+
+def test_batch_on_a_local_cluster(flights, tmp_path):
+    jobs = discover(flights)
+    assert [job.flight for job in jobs] == ["broken", "flight1", "flight2", "flight3"]
+    summary = run_batch(jobs, tmp_path, workers=2)
+    ok = summary[summary["status"] == "ok"]
+    assert sorted(ok["flight"]) == ["flight1", "flight2", "flight3"]
+    for flight in ok["flight"]:
+        table = pd.read_csv(tmp_path / flight / "eo.csv")
+        kamera = pd.read_csv(flights / flight / "Kamera.txt", sep="\t")
+        assert len(table) == len(kamera) == int(ok.loc[ok["flight"] == flight, "frames"].iloc[0])
+        assert "status ok" in (tmp_path / flight / "georef.log").read_text()
+    broken = summary[summary["flight"] == "broken"].iloc[0]
+    assert broken["status"] == "failed"
+    assert "line 500" in broken["message"] and "ACCS_X" in broken["message"]
+    assert "FAILED" in (tmp_path / "broken" / "georef.log").read_text()
+    on_disk = pd.read_csv(tmp_path / "batch_summary.csv")
+    assert list(on_disk["flight"]) == ["broken", "flight1", "flight2", "flight3"]
+    assert (on_disk["runtime_s"] > 0).all()
+    assert {"innovation_mean_nis", "rejected_fixes", "method"} <= set(on_disk.columns)
+
+
+def test_batch_from_a_manifest_via_the_cli(flights, tmp_path):
+    manifest = tmp_path / "flights.csv"
+    pd.DataFrame({"flight": ["a", "b"],
+                  "pos": [str(flights / "flight2" / "POS.txt"), str(flights / "flight3" / "POS.txt")],
+                  "camera": [str(flights / "flight2" / "Kamera.txt"), str(flights / "flight3" / "Kamera.txt")],
+                  "config": [str(flights / "flight2" / "flight.toml"), ""]}).to_csv(manifest, index=False)
+    result = CliRunner().invoke(app, ["batch", str(manifest), "-o", str(tmp_path / "out"), "--method", "axis",
+                                      "--workers", "2", "-q"])
+    assert result.exit_code == 0, result.output
+    summary = pd.read_csv(tmp_path / "out" / "batch_summary.csv")
+    assert list(summary["status"]) == ["ok", "ok"] and set(summary["method"]) == {"axis"}
+
+
+def test_bad_manifest_is_a_clear_error(tmp_path):
+    manifest = tmp_path / "m.csv"
+    manifest.write_text("name,pos\nx,y\n")
+    with pytest.raises(InputError, match="flight, pos, camera"):
+        discover(manifest)
