@@ -13,7 +13,7 @@ from typing import Any
 from georef.imu_errors import ImuErrorModel, imu_preset
 from georef.io.errors import InputError
 
-METHODS = ("rts", "ekf", "axis")
+METHODS = ("rts", "ekf", "axis", "graph")
 
 
 @dataclass(frozen=True)
@@ -67,10 +67,16 @@ class ProcessingConfig:
     imu_noise_from_data: bool = False
     #: covariance propagation rate of the full-state filters [Hz]
     covariance_rate: float = 10.0
+    #: factor-graph solver: "lm" (batch Levenberg-Marquardt) or "isam2" (incremental)
+    graph_solver: str = "lm"
+    #: factor graph: Cauchy robust kernel on the GNSS factors (False: plain Gaussian)
+    graph_robust: bool = True
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise ValueError(f"unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
+        if self.graph_solver not in ("lm", "isam2"):
+            raise ValueError(f"graph_solver must be 'lm' or 'isam2', got {self.graph_solver!r}")
         if self.attitude_source not in ("unit", "imu"):
             raise ValueError(f"attitude_source must be 'unit' or 'imu', got {self.attitude_source!r}")
         for name in ("lever_arm_gnss", "lever_arm_camera", "boresight", "gnss_sigma"):
@@ -105,6 +111,7 @@ _SECTIONS = {
     "axis": {"axis_accel_sigma", "axis_bias_sigma", "axis_bias_time"},
     "gnss_gate": {"gate_chi2"},
     "ins": {"imu_preset", "imu_noise_from_data", "covariance_rate"},
+    "graph": {"graph_solver", "graph_robust"},
 }
 
 

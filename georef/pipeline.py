@@ -29,6 +29,8 @@ SOLVERS: dict[str, tuple[Callable[[PosLog, ProcessingConfig], NavSolution], tupl
     "axis": (axis.solve_axis, axis.REQUIRED_ROLES),
     "ekf": (ins.solve_ekf, ins.REQUIRED_ROLES),
     "rts": (ins.solve_rts, ins.REQUIRED_ROLES),
+    "graph": (lambda log, cfg: __import__("georef.fusion.graph", fromlist=["solve_graph"]).solve_graph(log, cfg),
+              ins.REQUIRED_ROLES),
 }
 
 Progress = Callable[[str], None]
