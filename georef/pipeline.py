@@ -29,9 +29,15 @@ SOLVERS: dict[str, tuple[Callable[[PosLog, ProcessingConfig], NavSolution], tupl
     "axis": (axis.solve_axis, axis.REQUIRED_ROLES),
     "ekf": (ins.solve_ekf, ins.REQUIRED_ROLES),
     "rts": (ins.solve_rts, ins.REQUIRED_ROLES),
-    "graph": (lambda log, cfg: __import__("georef.fusion.graph", fromlist=["solve_graph"]).solve_graph(log, cfg),
-              ins.REQUIRED_ROLES),
+    "graph": (lambda log, cfg: _solve_graph(log, cfg), ins.REQUIRED_ROLES),
 }
+
+
+def _solve_graph(log: PosLog, cfg: ProcessingConfig) -> NavSolution:
+    """GTSAM is imported only when the graph method is used (it costs start-up time)."""
+    from georef.fusion.graph import solve_graph
+
+    return solve_graph(log, cfg)
 
 Progress = Callable[[str], None]
 
