@@ -81,7 +81,7 @@ def solve_graph(log, cfg: ProcessingConfig) -> NavSolution:
     factors_at: dict[int, list] = {}
     C_b_t = C_n_t_rows @ euler_to_dcm(rts.roll, rts.pitch, rts.yaw)
     p_t = to_plane(rts.r_e)
-    v_t = np.einsum("nij,nj->ni", C_e_t[None] @ np.eye(3)[None], rts.v_e)
+    v_t = rts.v_e @ C_e_t.T  # ECEF velocity into the tangent plane
     gyro_bias, accel_bias = rts.info["gyro_bias"], rts.info["accel_bias"]
     for k, row in enumerate(key_rows):
         values.insert(X(k), gtsam.Pose3(gtsam.Rot3(C_b_t[row]), p_t[row]))

@@ -91,10 +91,6 @@ def noise_model(inputs: InsInputs, cfg: ProcessingConfig) -> NoiseModel:
                       from_data=from_data)
 
 
-def _ned_offsets(lat0: float, lon0: float, r_e: np.ndarray) -> np.ndarray:
-    return (r_e - geodetic_to_ecef(lat0, lon0, 0.0 * lat0 + 0.0)) @ C_n_e(lat0, lon0)
-
-
 def _initial_state(inputs: InsInputs, cfg: ProcessingConfig) -> tuple[int, int, np.ndarray, np.ndarray, dict]:
     """Start row, start fix, nominal state and covariance for alignment in motion."""
     gnss, t = inputs.gnss, inputs.time
