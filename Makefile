@@ -3,6 +3,10 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+# the filters' loops compiled ahead of time (georef/kernels.py); rebuilt when their sources change
+KERNELS := $(VENV)/.kernels
+KERNEL_SOURCES := georef/kernels.py georef/fusion/ins_kernel.py georef/fusion/strapdown.py georef/frames/kernels.py \
+	georef/fusion/axis_kernel.py
 
 .PHONY: demo test lint bench clean browser
 
@@ -12,7 +16,11 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
-demo: $(STAMP)
+$(KERNELS): $(STAMP) $(KERNEL_SOURCES)
+	$(BIN)/georef build-kernels
+	touch $(KERNELS)
+
+demo: $(KERNELS)
 	$(BIN)/georef process data/POS.txt data/Kamera.txt --config data/flight.toml -o out/eo.csv
 	$(BIN)/georef evaluate out/eo.csv data/truth.csv
 
@@ -22,12 +30,12 @@ browser:
 	  { (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver) \
 	    >/dev/null 2>&1 || echo "could not install chromium: the report test will say so"; }
 
-test: $(STAMP) browser
+test: $(KERNELS) browser
 	$(BIN)/ruff check georef cli tests benchmarks examples
 	$(BIN)/python -m pytest -q
 
-bench: $(STAMP)
+bench: $(KERNELS)
 	$(BIN)/python benchmarks/bench_pipeline.py
 
 clean:
-	rm -rf $(VENV) out .pytest_cache
+	rm -rf $(VENV) out .pytest_cache georef/_aot_*

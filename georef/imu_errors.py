@@ -16,6 +16,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 G0 = 9.80665  # m/s^2 per g, for mg conversions
 DEG_PER_HOUR = math.pi / 180.0 / 3600.0  # rad/s per deg/h
 
@@ -94,3 +96,10 @@ def imu_preset(name: str) -> ImuErrorModel:
         return IMU_PRESETS[name]
     except KeyError:
         raise KeyError(f"unknown IMU preset {name!r}; known: {', '.join(IMU_PRESETS)}") from None
+
+
+def white_noise_sigma(samples: np.ndarray) -> np.ndarray:
+    """Per-column white-noise standard deviation estimated from first differences (robust MAD)."""
+    diffs = np.diff(samples, axis=0)
+    mad = np.median(np.abs(diffs - np.median(diffs, axis=0)), axis=0)
+    return 1.4826 * mad / np.sqrt(2.0)

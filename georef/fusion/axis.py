@@ -21,21 +21,15 @@ from georef.config import ProcessingConfig
 from georef.frames import C_n_e, ecef_to_geodetic, geodetic_to_ecef, wrap_pi
 from georef.frames.mounting import lever_arm_ecef
 from georef.frames.rotations import attitude_at
-from georef.fusion.axis_kernel import axis_filter
 from georef.fusion.solution import GnssUse, NavSolution, ecef_variances_to_ned, ned_variances_to_ecef
 from georef.fusion.yaw_offset import recover_yaw_offset
+from georef.imu_errors import white_noise_sigma
 from georef.io.errors import GeorefError
 from georef.io.pos import PosLog
+from georef.kernels import load as load_kernel
 
 REQUIRED_ROLES = ("iacc_x", "iacc_y", "iacc_z", "roll", "pitch", "yaw")
 MAX_CONSECUTIVE_REJECTS = 5
-
-
-def white_noise_sigma(samples: np.ndarray) -> np.ndarray:
-    """Per-column white-noise standard deviation estimated from first differences (robust MAD)."""
-    diffs = np.diff(samples, axis=0)
-    mad = np.median(np.abs(diffs - np.median(diffs, axis=0)), axis=0)
-    return 1.4826 * mad / np.sqrt(2.0)
 
 
 def solve_axis(log: PosLog, cfg: ProcessingConfig) -> NavSolution:
@@ -80,7 +74,7 @@ def solve_axis(log: PosLog, cfg: ProcessingConfig) -> NavSolution:
     s_cont = np.full(3, cfg.axis_bias_sigma**2 * cfg.axis_bias_time)
     v_init = (z_fix[1] - z_fix[0]) / (fix_t[1] - fix_t[0]) if len(fix_t) > 1 else np.zeros(3)
 
-    pos, vel, var_p, _, _, innov, innov_var, status = axis_filter(
+    pos, vel, var_p, _, _, innov, innov_var, status = load_kernel("axis").axis_filter(
         t, a_e, fix_t, z_fix, r_fix, v_init, q_white, s_cont, cfg.gate_chi2, MAX_CONSECUTIVE_REJECTS)
     valid = np.isfinite(pos[:, 0])
     lat, lon, height = ecef_to_geodetic(np.where(valid[:, None], pos, r_ant[0]))

@@ -19,11 +19,11 @@ from georef.align import GnssEpochs
 from georef.config import ProcessingConfig
 from georef.frames import C_n_e, dcm_to_quat, euler_to_dcm, geodetic_to_ecef, radii_of_curvature
 from georef.frames.rotations import wrap_pi
-from georef.fusion.axis import white_noise_sigma
-from georef.fusion.ins_kernel import run_ins
 from georef.fusion.solution import GnssUse, NavSolution
 from georef.fusion.yaw_offset import recover_yaw_offset
+from georef.imu_errors import white_noise_sigma
 from georef.io.errors import GeorefError
+from georef.kernels import load as load_kernel
 
 REQUIRED_ROLES = ("gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
 MAX_CONSECUTIVE_REJECTS = 5
@@ -192,13 +192,12 @@ def solve_ins(inputs: InsInputs, cfg: ProcessingConfig, smooth: bool = True) -> 
     rate = 1.0 / float(np.median(np.diff(t)))
     stride = max(1, int(round(rate / cfg.covariance_rate)))
     aiding = bool(cfg.unit_aiding and inputs.unit_rpy is not None)
-    unit_rpy = np.ascontiguousarray(inputs.unit_rpy) if inputs.unit_rpy is not None else np.zeros((len(t), 3))
+    unit_rpy = inputs.unit_rpy if inputs.unit_rpy is not None else np.zeros((len(t), 3))
     info["unit_aiding"] = aiding
     (states, pos_var, vel_var, att_cov, valid, angles, att_sigma, ep_row, epoch_sigma, innov, innov_var,
-     status) = run_ins(t, np.ascontiguousarray(inputs.gyro), np.ascontiguousarray(inputs.accel), start_row, x0, P0,
-                       fix_row, fix_lag, np.ascontiguousarray(z_fix), r_fix, np.asarray(cfg.lever_arm_gnss, float),
-                       noise.as_array(cfg), stride, cfg.gate_chi2, MAX_CONSECUTIVE_REJECTS, unit_rpy, aiding,
-                       smooth)
+     status) = load_kernel("ins").run_ins(t, inputs.gyro, inputs.accel, start_row, x0, P0, fix_row, fix_lag, z_fix,
+                                          r_fix, cfg.lever_arm_gnss, noise.as_array(cfg), stride, cfg.gate_chi2,
+                                          MAX_CONSECUTIVE_REJECTS, unit_rpy, aiding, smooth)
     roll, pitch, yaw = angles[:, 0], angles[:, 1], angles[:, 2]
     lat = np.where(valid, states[:, 0], states[start_row, 0])
     lon = np.where(valid, states[:, 1], states[start_row, 1])

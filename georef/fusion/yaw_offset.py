@@ -181,7 +181,9 @@ def _window_solve(r_n: np.ndarray, tau: np.ndarray, A: np.ndarray, B: np.ndarray
         jac_d = np.concatenate([turned[:, 0] / sig[0], turned[:, 1] / sig[1]])
         return np.concatenate([design, jac_d[:, None]], axis=1), residual, solution
 
-    # Gauss-Newton on d (the linear parameters are re-solved exactly at every step), Huber reweighting
+    # Gauss-Newton on d (the linear parameters are re-solved exactly at every step), Huber reweighting.
+    # Reweighting makes convergence linear; steps below a thousandth of the window's sigma change nothing.
+    converged = max(1e-3 * sigma0, 1e-8)
     weights = np.ones(2 * n)
     d = d0
     for iteration in range(12):
@@ -191,7 +193,7 @@ def _window_solve(r_n: np.ndarray, tau: np.ndarray, A: np.ndarray, B: np.ndarray
         d += float(np.clip(step[-1], -0.2, 0.2))
         if iteration >= 1:
             weights = np.where(np.abs(residual) <= HUBER_K, 1.0, HUBER_K / np.maximum(np.abs(residual), 1e-12))
-        if abs(step[-1]) < 1e-8 and iteration >= 2:
+        if abs(step[-1]) < converged and iteration >= 2:
             break
     jacobian, residual, _ = jacobian_and_residual(d, weights)
     normal = jacobian.T @ (jacobian * weights[:, None])
