@@ -1,8 +1,10 @@
 """Full-state fusion speed: EKF and EKF+RTS throughput, end-to-end `georef process`, peak memory.
 
-Runs on one core (BLAS and numba threads pinned to 1). For each case it simulates the flight once (kept in
---folder), then prints IMU epochs per second of the compiled filter and smoother, and the wall time and peak
-RSS of the whole `georef process --method rts` command (Python start-up included, numba cache warm).
+Runs on one core (BLAS and numba threads pinned to 1; ``taskset -c 0`` pins the process too). For each case it
+simulates the flight once (kept in --folder), then prints IMU epochs per second of the compiled filter and
+smoother, and the wall time and peak RSS of the whole `georef process --method rts` command (Python start-up
+included, numba cache warm), with the ahead-of-time kernels of ``georef build-kernels`` and with numba's
+JIT (``GEOREF_KERNELS=jit``).
 Usage: python benchmarks/bench_ins.py [--cases 15:50 60:200] [--folder /tmp/georef-bench]
 """
 
@@ -14,7 +16,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
-import resource  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -37,8 +38,20 @@ def ensure_flight(folder: Path, minutes: float, rate: float) -> Path:
     return folder
 
 
-def child_peak_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+# Runs a command from a small launcher process and prints its wall time [s] and peak RSS [kB]. A child forked
+# straight from this (large) benchmark process would start with the benchmark's pages counted in its RSS
+# high-water mark, so RUSAGE_CHILDREN here would report the benchmark's memory, not the command's.
+LAUNCHER = ("import resource, subprocess, sys, time; start = time.perf_counter(); "
+            "subprocess.run(sys.argv[1:], check=True); wall = time.perf_counter() - start; "
+            "print(wall, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)")
+
+
+def run_measured(command: list[str], env: dict[str, str]) -> tuple[float, float]:
+    """Wall time [s] and peak RSS [MB] of ``command`` alone."""
+    result = subprocess.run([sys.executable, "-c", LAUNCHER, *command], check=True, env=env, capture_output=True,
+                            text=True)
+    wall, peak_kb = result.stdout.split()
+    return float(wall), float(peak_kb) / 1024
 
 
 def main() -> None:
@@ -61,17 +74,18 @@ def main() -> None:
             seconds = time.perf_counter() - start
             epochs = int(nav.valid.sum())
             print(f"  {label:<8} {seconds:6.2f} s  {epochs / seconds:>11,.0f} IMU epochs/s (incl. yaw-offset recovery)")
-        walls = []
-        for _ in range(4):  # the first run may refresh the numba cache; the machine's timing is noisy
-            before = time.perf_counter()
-            subprocess.run([str(georef), "process", str(folder / "POS.txt"), str(folder / "Kamera.txt"),
-                            "--config", str(folder / "flight.toml"), "--method", "rts", "-o",
-                            str(folder / "eo.csv"), "--quiet"], check=True)
-            walls.append(time.perf_counter() - before)
-        warm = sorted(walls[1:])
-        print(f"  georef process --method rts: {warm[0]:.2f} s best, {warm[1]:.2f} s median of 3 warm runs end to "
-              f"end (Python start-up included); peak RSS of the children so far {child_peak_mb():.0f} MB")
+        from georef import kernels
 
+        print(f"  kernels in this process: {kernels.LOADED}")
+        for mode in ("auto", "jit"):
+            runs = [run_measured([str(georef), "process", str(folder / "POS.txt"), str(folder / "Kamera.txt"),
+                                  "--config", str(folder / "flight.toml"), "--method", "rts", "-o",
+                                  str(folder / "eo.csv"), "--quiet"], {**os.environ, "GEOREF_KERNELS": mode})
+                    for _ in range(4)]  # the first run may refresh a cache; the machine's timing is noisy
+            warm = sorted(wall for wall, _ in runs[1:])
+            label = "ahead-of-time kernels" if mode == "auto" else "numba JIT from its cache"
+            print(f"  georef process --method rts, {label}: {warm[0]:.2f} s best, {warm[1]:.2f} s median of 3 "
+                  f"warm runs end to end (Python start-up included); peak RSS {max(p for _, p in runs):.0f} MB")
 
 if __name__ == "__main__":
     main()

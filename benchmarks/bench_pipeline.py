@@ -7,12 +7,14 @@ start-up, and peak memory. Usage: python benchmarks/bench_pipeline.py [--minutes
 from __future__ import annotations
 
 import argparse
+import os
 import resource
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from bench_ins import run_measured  # same folder: the command's own peak memory
 
 from georef.config import load_config
 from georef.io.eo_table import write_eo_csv
@@ -61,12 +63,9 @@ def main() -> None:
           "(includes the benchmark's own set-up)")
 
     georef = Path(sys.executable).with_name("georef")
-    start = time.perf_counter()
-    subprocess.run([str(georef), "process", str(pos), str(folder / "Kamera.txt"), "--config",
-                    str(folder / "flight.toml"), "--method", args.method, "-o", str(folder / "eo_cli.csv"),
-                    "--quiet"], check=True)
-    wall = time.perf_counter() - start
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    wall, peak = run_measured([str(georef), "process", str(pos), str(folder / "Kamera.txt"), "--config",
+                               str(folder / "flight.toml"), "--method", args.method, "-o",
+                               str(folder / "eo_cli.csv"), "--quiet"], dict(os.environ))
     print(f"  georef process command: {wall:.2f} s end to end (Python start-up included), peak RSS {peak:.0f} MB")
 
 

@@ -108,21 +108,46 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None) 
     return row
 
 
+#: Dask settings for the LocalCluster that georef starts. A flight is one CPU-bound, single-threaded task, so a
+#: worker's own background work competes with it: the statistical profiler samples every thread's stack every
+#: 10 ms (holding the GIL), and the memory and system monitors poll 10 and 2 times a second. Measured in
+#: benchmarks/bench_batch.py (docs/method-graph.md).
+LOCAL_CLUSTER_CONFIG = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.admin.system-monitor.interval": "2s",
+}
+
+
+def start_local_cluster(workers: int = 2, tuned: bool = True):
+    """A ``LocalCluster`` of ``workers`` single-threaded worker processes on this machine, no dashboard.
+
+    With ``tuned``, the workers run with :data:`LOCAL_CLUSTER_CONFIG` (the nanny hands the configuration to
+    the worker processes it spawns); without it, with Dask's defaults.
+    """
+    import dask
+    from dask.distributed import LocalCluster
+
+    settings = LOCAL_CLUSTER_CONFIG if tuned else {}
+    with dask.config.set(settings):
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+
+
 def run_batch(jobs: list[FlightJob], output_root: Path | str, method: str | None = None,
               scheduler: str | None = None, workers: int = 2,
               on_done: Callable[[dict], None] | None = None) -> pd.DataFrame:
     """Process every job on Dask distributed; returns (and writes) the summary table.
 
     ``scheduler`` is an address such as ``tcp://host:8786``; without it a ``LocalCluster`` of ``workers``
-    single-threaded processes is started and closed here.
+    single-threaded processes is started (:func:`start_local_cluster`) and closed here.
     """
-    from dask.distributed import Client, LocalCluster, as_completed
+    from dask.distributed import Client, as_completed
 
     output_root = Path(output_root)
     output_root.mkdir(parents=True, exist_ok=True)
     cluster = None
     if scheduler is None:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        cluster = start_local_cluster(workers)
         client = Client(cluster)
     else:
         client = Client(scheduler)
