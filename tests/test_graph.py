@@ -47,10 +47,14 @@ def test_robust_kernel_resists_outliers(tmp_path):
     assert robust["horizontal_rms_m"] <= rts["horizontal_rms_m"]  # this flight; see the xfail below
 
 
-@pytest.mark.xfail(strict=True, reason="known shortfall: over seeds 1-4 with three 20-40 m outliers the robust graph's "
-                                       "horizontal RMS is within 0.02 m of RTS-with-gating but larger on two flights "
-                                       "(the graph does not fuse the unit's attitude)")
-@pytest.mark.parametrize("seed", [3, 4])
+SHORTFALL = pytest.mark.xfail(strict=True, reason=(
+    "known shortfall: with the unit's attitude fused (Gauss-Markov level errors, yaw origin and drift) the robust "
+    "graph beats RTS-with-gating on seeds 2 and 3 but not on 1 (0.270 vs 0.263 m) and 4 (0.306 vs 0.276 m); the two "
+    "smoothers carry the same information (equal posterior sigmas with a plain kernel) but their estimates differ "
+    "by ~0.06 m, and the Cauchy kernel down-weights good fixes (docs/method-graph.md)"))
+
+
+@pytest.mark.parametrize("seed", [pytest.param(1, marks=SHORTFALL), 2, 3, pytest.param(4, marks=SHORTFALL)])
 def test_graph_at_least_as_accurate_as_rts_with_outliers(tmp_path, seed):
     sim = SimConfig(seed=seed, gnss=GnssModel(outliers=OUTLIERS))
     flight, results = _run(tmp_path, sim, graph={"method": "graph"}, rts={"method": "rts"})

@@ -1,19 +1,24 @@
 """``--method graph``: a GTSAM factor-graph smoother over GNSS keyframes.
 
 * Frame: a local NED tangent plane at the flight's centre (GTSAM's navigation frame is Cartesian). Earth
-  rotation enters through ``omegaCoriolis = ω_ie`` at the centre; gravity is the normal gravity at the centre
-  along the plane's down axis. At a distance d from the centre the true vertical is tilted by d/R from the
-  plane's down axis (0.16 mrad, 1.5 mg of horizontal gravity at 1 km): the graph absorbs it into the
-  accelerometer bias and attitude; results are turned back into each point's own NED frame exactly.
-* Keyframes at every GNSS fix (the first IMU row after it); IMU preintegration between them
-  (``CombinedImuFactor``: pose, velocity and bias random walks); GNSS position factors through the antenna
-  lever arm (``GPSFactorArm``) with a Cauchy robust kernel (k = 4 sigma) against outliers; priors from the EKF.
+  rotation enters through ``omegaCoriolis = ω_ie`` at the centre; GTSAM's gravity is the normal gravity at the
+  centre along the plane's down axis, and each accelerometer row is compensated by ``C_t_b (g_t - g_plane)``
+  (its own normal gravity, along its own vertical, in the plane), so the d/R tilt of the vertical (0.16 mrad at
+  1 km) is modelled, not absorbed. Results are turned back into each point's own NED frame exactly.
+* Keyframes at every GNSS fix (the first IMU row after it) and, where fixes are more than 1.5 s apart, about
+  once a second; IMU preintegration between them (``CombinedImuFactor``: pose, velocity and bias random walks);
+  GNSS position factors through the antenna lever arm (``GPSFactorArm``) with a Cauchy robust kernel
+  (k = 4 sigma) against outliers; loose priors at the first keyframe.
+* The POS unit's own attitude (``cfg.unit_aiding`` and ROLL/PITCH/YAW in the log), the same model as the EKF:
+  a variable ``U = (e_r, e_p, d, d_dot)`` [rad, rad, rad, rad/s] per keyframe; a factor
+  ``(roll + e_r, pitch + e_p, yaw - d) - (roll_u, pitch_u, yaw_u)`` with white sigma ``unit_angle_noise``
+  (``gtsam.CustomFactor``); between keyframes a linear factor for the Gauss-Markov level errors
+  (``e_k = exp(-dt/tau) e_k-1``, variance ``sigma^2 (1 - exp(-2 dt/tau))``) and the yaw origin with its
+  random-walk drift (``unit_drift_change``).
 * Initial values from the EKF + RTS solution; batch Levenberg-Marquardt, or ISAM2 fed one keyframe at a time
-  (``graph_solver = "isam2"``). Per-keyframe covariances from
-  ``Marginals``; IMU-rate states are the RTS trajectory corrected by the graph-minus-RTS difference
-  interpolated between keyframes.
+  (``graph_solver = "isam2"``). Per-keyframe covariances from ``Marginals``; IMU-rate states are the RTS
+  trajectory corrected by the graph-minus-RTS difference interpolated between keyframes.
 """
-
 from __future__ import annotations
 
 import numpy as np
@@ -36,16 +41,22 @@ from georef.frames.rotations import (
     quat_to_dcm,
     quat_to_rotvec,
     rotvec_to_quat,
+    wrap_pi,
 )
 from georef.fusion.ins import inputs_from_pos, noise_model, solve_ins
 from georef.fusion.solution import NavSolution
 
 CAUCHY_K = 4.0
+MAX_KEY_GAP = 1.5  # s; longer gaps between fixes get keyframes about once a second
 
 
 def solve_graph(log, cfg: ProcessingConfig) -> NavSolution:
+    """Graph smoother on a POS log (body-frame OMGS deg/s, ACCS m/s^2, GNSS antenna fixes, optionally the unit's
+    ROLL/PITCH/YAW deg). Returns a :class:`NavSolution` at every IMU row: ECEF position [m] and velocity [m/s],
+    geodetic lat/lon [rad] and height [m], body-to-NED roll/pitch/yaw [rad], NED position variances [m^2],
+    NED attitude-error covariance [rad^2] and Euler sigmas [rad]."""
     import gtsam
-    from gtsam.symbol_shorthand import B, V, X
+    from gtsam.symbol_shorthand import B, U, V, X
 
     inputs = inputs_from_pos(log)
     rts = solve_ins(inputs, cfg, smooth=True)
@@ -55,7 +66,7 @@ def solve_graph(log, cfg: ProcessingConfig) -> NavSolution:
     use = np.flatnonzero((gnss.time >= t[valid_rows[0]]) & (gnss.time <= t[valid_rows[-1]])
                          & (rts.gnss.status >= 0))
     key_rows = np.unique(np.searchsorted(t, gnss.time[use], side="left"))
-    key_rows = key_rows[key_rows >= valid_rows[0]]
+    key_rows = _fill_gaps(t, key_rows[key_rows >= valid_rows[0]], MAX_KEY_GAP)
     # tangent plane at the centre of the flight
     centre = len(key_rows) // 2
     lat0, lon0, h0 = rts.lat[key_rows[centre]], rts.lon[key_rows[centre]], rts.height[key_rows[centre]]
@@ -95,7 +106,12 @@ def solve_graph(log, cfg: ProcessingConfig) -> NavSolution:
         gtsam.PriorFactorVector(V(0), v_t[first], gtsam.noiseModel.Isotropic.Sigma(3, 0.5)),
         gtsam.PriorFactorConstantBias(B(0), values.atConstantBias(B(0)), gtsam.noiseModel.Diagonal.Sigmas(
             np.concatenate([np.full(3, noise.sigma_ba0), np.full(3, noise.sigma_bg0)])))]
-    gyro, accel = inputs.gyro, inputs.accel
+    gyro = inputs.gyro
+    # each row's own normal gravity, turned into the plane: f' = f + C_t_b (g_t - g_plane) makes GTSAM's constant
+    # plane gravity exact (the local vertical is tilted by d/R from the plane's down axis)
+    g_t = C_n_t_rows[:, :, 2] * normal_gravity(rts.lat, rts.height)[:, None]
+    g_fix = np.einsum("nji,nj->ni", C_b_t, g_t - np.array([0.0, 0.0, float(normal_gravity(lat0, h0))]))
+    accel = inputs.accel + np.where(np.isfinite(g_fix), g_fix, 0.0)
     for k in range(1, len(key_rows)):
         a, b = key_rows[k - 1], key_rows[k]
         pim = gtsam.PreintegratedCombinedMeasurements(params, values.atConstantBias(B(k - 1)))
@@ -120,6 +136,9 @@ def solve_graph(log, cfg: ProcessingConfig) -> NavSolution:
         z = to_plane(r_ant) + v_t[row] * (t[row] - gnss.time[index])
         factors_at.setdefault(k, []).append(gtsam.GPSFactorArm(X(k), z, np.asarray(cfg.lever_arm_gnss, float),
                                                                robust))
+    aiding = bool(cfg.unit_aiding and inputs.unit_rpy is not None)
+    if aiding:
+        _add_unit_attitude(gtsam, U, X, inputs.unit_rpy, rts, t, key_rows, C_n_t_rows, cfg, values, factors_at)
     for k in range(len(key_rows)):
         for factor in factors_at.get(k, []):
             graph.add(factor)
@@ -134,6 +153,8 @@ def solve_graph(log, cfg: ProcessingConfig) -> NavSolution:
             new_values.insert(X(k), values.atPose3(X(k)))
             new_values.insert(V(k), values.atVector(V(k)))
             new_values.insert(B(k), values.atConstantBias(B(k)))
+            if aiding:
+                new_values.insert(U(k), values.atVector(U(k)))
             isam.update(new_graph, new_values)
         isam.update()
         result = isam.calculateEstimate()
@@ -184,3 +205,81 @@ def solve_graph(log, cfg: ProcessingConfig) -> NavSolution:
     return NavSolution(method="graph", time=t, r_e=r_e, v_e=v_e, lat=lat, lon=lon, height=height, roll=roll,
                        pitch=pitch, yaw=yaw, pos_var_n=pos_var_rows, att_sigma=att_sigma, valid=valid, gnss=rts.gnss,
                        info=info, att_cov_n=att_cov_rows)
+
+
+def _fill_gaps(t: np.ndarray, key_rows: np.ndarray, max_gap: float) -> np.ndarray:
+    """Keyframe rows with extra rows about once a second wherever fixes are more than ``max_gap`` [s] apart."""
+    extra = []
+    for a, b in zip(key_rows[:-1], key_rows[1:], strict=True):
+        span = t[b] - t[a]
+        if span > max_gap:
+            steps = int(np.ceil(span - 1e-9))
+            extra.append(np.searchsorted(t, t[a] + span * np.arange(1, steps) / steps))
+    return np.unique(np.concatenate([key_rows, *extra])) if extra else key_rows
+
+
+def _unit_factor(gtsam, key_x: int, key_u: int, z: np.ndarray, C_t_n: np.ndarray, noise):
+    """The unit's roll, pitch, yaw [rad] at one keyframe: ``roll_u = roll + e_r``, ``pitch_u = pitch + e_p``,
+    ``yaw_u = yaw - d``, with (roll, pitch, yaw) of ``C_b_n = C_t_n R`` and ``U = (e_r, e_p, d, d_dot)``."""
+    def error(this, v, H):
+        C = C_t_n @ v.atPose3(key_x).rotation().matrix()
+        roll, pitch, yaw = dcm_to_euler(C)
+        u = v.atVector(key_u)
+        e = np.array([roll + u[0] - z[0], pitch + u[1] - z[1], wrap_pi(yaw - u[2] - z[2])])
+        if H is not None:
+            # R Exp(xi): a body rotation xi is the NED rotation C xi, and euler_error_jacobian = E C^T
+            H[0] = np.hstack([euler_error_jacobian(roll, pitch, yaw) @ C, np.zeros((3, 3))])
+            H[1] = UNIT_H
+        return e
+    return gtsam.CustomFactor(noise, [key_x, key_u], error)
+
+
+DRIFT_PRIOR = np.radians(2.0) / 60.0  # rad/s, as the EKF without a recovered yaw offset
+UNIT_H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0]])
+
+
+def _linear(gtsam, keys: list[int], blocks: list[np.ndarray], b: np.ndarray):
+    """A linear Gaussian factor ``sum A_i x_i - b`` (whitened) on 4-vector variables, linearised at zero."""
+    args = [item for key, A in zip(keys, blocks, strict=True) for item in (key, A)]
+    factor = gtsam.JacobianFactor(*args, b, gtsam.noiseModel.Unit.Create(len(b)))
+    zero = gtsam.Values()
+    for key in keys:
+        zero.insert(key, np.zeros(4))
+    return gtsam.LinearContainerFactor(factor, zero)
+
+
+def _add_unit_attitude(gtsam, U, X, unit_rpy, rts, t, key_rows, C_n_t_rows, cfg, values, factors_at) -> None:
+    """Unit-attitude variables ``U(k) = (e_r, e_p, d, d_dot)`` [rad, rad/s] and their factors (see the module)."""
+    level = np.radians(cfg.unit_level_sigma)
+    tau = cfg.unit_level_time
+    q_drift = (np.radians(cfg.unit_drift_change) / 60.0 / np.sqrt(60.0)) ** 2  # rad^2/s^3, as the EKF
+    white = gtsam.noiseModel.Isotropic.Sigma(3, np.radians(cfg.unit_angle_noise))
+    z = unit_rpy[key_rows]
+    e_level = z[:, :2] - np.stack([rts.roll[key_rows], rts.pitch[key_rows]], -1)
+    d = np.unwrap(wrap_pi(rts.yaw[key_rows] - z[:, 2]))
+    tk = t[key_rows] - t[key_rows[0]]
+    if len(tk) > 1:  # initial values on a straight line: the drift's random walk is slow
+        d_dot, d_start = np.polyfit(tk, d, 1)
+        d = d_start + d_dot * tk
+    else:
+        d_dot = 0.0
+    for k in range(len(key_rows)):
+        values.insert(U(k), np.array([e_level[k, 0], e_level[k, 1], d[k], d_dot]))
+    for k, row in enumerate(key_rows):
+        factors_at.setdefault(k, []).append(_unit_factor(gtsam, X(k), U(k), z[k], C_n_t_rows[row].T, white))
+    # priors at the first keyframe: the level errors' stationary Gauss-Markov sigma; the yaw origin is free (pi,
+    # only to keep the first incremental update determinate), its drift within the EKF's default 2 deg/min
+    prior_sigma = np.array([level, level, np.pi, DRIFT_PRIOR])
+    factors_at[0].append(_linear(gtsam, [U(0)], [np.diag(1.0 / prior_sigma)],
+                                 np.array([0.0, 0.0, d[0], 0.0]) / prior_sigma))
+    for k in range(1, len(key_rows)):
+        dt = tk[k] - tk[k - 1]
+        phi = np.exp(-dt / tau)
+        A = np.zeros((4, 4))
+        A[:2, :2] = np.eye(2) * phi
+        A[2:, 2:] = [[1.0, dt], [0.0, 1.0]]
+        Q = np.zeros((4, 4))
+        Q[:2, :2] = np.eye(2) * level**2 * (1.0 - phi**2)
+        Q[2:, 2:] = q_drift * np.array([[dt**3 / 3.0, dt**2 / 2.0], [dt**2 / 2.0, dt]])
+        W = np.linalg.inv(np.linalg.cholesky(Q))  # whitening: W (U_k - A U_k-1)
+        factors_at.setdefault(k, []).append(_linear(gtsam, [U(k - 1), U(k)], [-W @ A, W], np.zeros(4)))
