@@ -108,11 +108,16 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None) 
     return row
 
 
-#: Dask settings for the LocalCluster that georef starts. A flight is one CPU-bound, single-threaded task, so a
-#: worker's own background work competes with it: the statistical profiler samples every thread's stack every
-#: 10 ms (holding the GIL), and the memory and system monitors poll 10 and 2 times a second. Measured in
-#: benchmarks/bench_batch.py (docs/method-graph.md).
+#: Dask settings for the LocalCluster that georef starts, where a flight is one CPU-bound, single-threaded task.
+#: * The nanny's default environment sets ``MALLOC_TRIM_THRESHOLD_=65536`` (to hand memory back to the OS).
+#:   Setting it switches off glibc's dynamic mmap threshold, so every large numpy array of the pipeline is a
+#:   fresh mmap, page-faulted in and unmapped again: tasks ran 1.16-1.24x slower than in a plain process and the
+#:   2-worker speed-up stayed at 1.42-1.67x. Without it: 1.01x and 1.90-1.92x (benchmarks/bench_batch.py).
+#:   BLAS/OpenMP stay at one thread per worker, as in Dask's default.
+#: * The statistical profiler samples every thread's stack every 10 ms (holding the GIL); the memory and system
+#:   monitors poll 10 and 2 times a second. None of it is of use to a batch of flights.
 LOCAL_CLUSTER_CONFIG = {
+    "distributed.nanny.pre-spawn-environ": {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1},
     "distributed.worker.profile.enabled": False,
     "distributed.worker.memory.monitor-interval": "1s",
     "distributed.admin.system-monitor.interval": "2s",
