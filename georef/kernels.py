@@ -15,6 +15,7 @@ the two), ``GEOREF_KERNELS=aot`` makes a missing build an error.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib
 import os
@@ -87,8 +88,10 @@ KERNELS: dict[str, KernelSpec] = {
 LOADED: dict[str, str] = {}
 
 
+@functools.cache
 def source_hash(name: str) -> str:
-    """Twelve hex digits of SHA-256 over the kernel's source files (their bytes, in the listed order)."""
+    """Twelve hex digits of SHA-256 over the kernel's source files (their bytes, in the listed order), computed
+    once per process (the JIT module is not reloaded within a process either)."""
     digest = hashlib.sha256()
     for relative in KERNELS[name].sources:
         digest.update(relative.encode())
@@ -157,10 +160,10 @@ def load(name: str) -> SimpleNamespace:
                               for function, interface in spec.functions.items()})
 
 
-def build(name: str, directory: Path | None = None) -> Path:
-    """Compile kernel ``name`` ahead of time into ``directory`` (default: this package) and return the file.
+def build(name: str) -> Path:
+    """Compile kernel ``name`` ahead of time into this package, where :func:`load` finds it; returns the file.
 
-    Older builds of the same kernel in that directory are removed. Takes about 10 s per kernel.
+    Older builds of the same kernel are removed. Takes about 10 s per kernel.
     """
     import warnings
 
@@ -171,19 +174,17 @@ def build(name: str, directory: Path | None = None) -> Path:
         from numba.pycc import CC
 
         spec = KERNELS[name]
-        directory = Path(directory or PACKAGE_DIR)
-        directory.mkdir(parents=True, exist_ok=True)
         jit_module = importlib.import_module(spec.jit_module)
         module_name = aot_module_name(name)
         compiler = CC(module_name)
-        compiler.output_dir = str(directory)
+        compiler.output_dir = str(PACKAGE_DIR)
         compiler.verbose = False
         for function, interface in spec.functions.items():
             compiler.export(function, interface.numba_signature())(getattr(jit_module, function).py_func)
-        for old in directory.glob(f"_aot_{name}_*"):
+        for old in PACKAGE_DIR.glob(f"_aot_{name}_*"):
             old.unlink()
         compiler.compile()
-    built = sorted(directory.glob(f"{module_name}.*"))
+    built = sorted(PACKAGE_DIR.glob(f"{module_name}.*"))
     if not built:
-        raise RuntimeError(f"numba.pycc produced no module {module_name} in {directory}")
+        raise RuntimeError(f"numba.pycc produced no module {module_name} in {PACKAGE_DIR}")
     return built[0]

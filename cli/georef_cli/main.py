@@ -406,23 +406,22 @@ def info(
 @app.command("build-kernels")
 @_user_errors
 def build_kernels(
-    directory: Annotated[Path | None, typer.Option(help="Where to write the compiled modules (default: inside the "
-                                                        "installed georef package).")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors.")] = False,
 ) -> None:
     """Compile the filters' inner loops ahead of time (about 10 s each, once per install).
 
-    Without this step georef runs the same loops through numba's JIT, which costs every run about 0.5 s of
-    start-up. A build whose sources have changed since is ignored, never run.
+    The modules are written inside the installed georef package (which must be writable). Without this step
+    georef runs the same loops through numba's JIT, which costs every run about 0.5 s of start-up. A build
+    whose sources have changed since is ignored, never run.
     """
     from georef.kernels import KERNELS, build
 
     for name in KERNELS:
         if quiet:
-            build(name, directory)
+            build(name)
             continue
         with console.status(f"compiling the {name} kernel"):
-            path = build(name, directory)
+            path = build(name)
         console.print(f"built {path}", highlight=False)
 
 

@@ -43,7 +43,7 @@ from georef.frames.rotations import (
     rotvec_to_quat,
     wrap_pi,
 )
-from georef.fusion.ins import inputs_from_pos, noise_model, solve_ins
+from georef.fusion.ins import inputs_from_pos, noise_model, solve_ins, unit_drift_psd
 from georef.fusion.solution import NavSolution
 
 CAUCHY_K = 4.0
@@ -252,7 +252,7 @@ def _add_unit_attitude(gtsam, U, X, unit_rpy, rts, t, key_rows, C_n_t_rows, cfg,
     """Unit-attitude variables ``U(k) = (e_r, e_p, d, d_dot)`` [rad, rad/s] and their factors (see the module)."""
     level = np.radians(cfg.unit_level_sigma)
     tau = cfg.unit_level_time
-    q_drift = (np.radians(cfg.unit_drift_change) / 60.0 / np.sqrt(60.0)) ** 2  # rad^2/s^3, as the EKF
+    q_drift = unit_drift_psd(cfg)  # rad^2/s^3, as the EKF
     white = gtsam.noiseModel.Isotropic.Sigma(3, np.radians(cfg.unit_angle_noise))
     z = unit_rpy[key_rows]
     e_level = z[:, :2] - np.stack([rts.roll[key_rows], rts.pitch[key_rows]], -1)

@@ -61,10 +61,15 @@ class NoiseModel:
     def as_array(self, cfg: ProcessingConfig) -> np.ndarray:
         """The kernel's noise vector, with the unit-attitude error model of ``cfg``."""
         level = np.radians(cfg.unit_level_sigma)
-        drift_change = np.radians(cfg.unit_drift_change) / 60.0 / np.sqrt(60.0)  # rad/s per sqrt(s)
         return np.array([self.q_vel, self.q_att, self.q_bg, self.q_ba, 0.0, 0.0,
-                         2.0 * level**2 / cfg.unit_level_time, 1.0 / cfg.unit_level_time, drift_change**2,
+                         2.0 * level**2 / cfg.unit_level_time, 1.0 / cfg.unit_level_time, unit_drift_psd(cfg),
                          np.radians(cfg.unit_angle_noise) ** 2, np.radians(cfg.unit_angle_noise) ** 2])
+
+
+def unit_drift_psd(cfg: ProcessingConfig) -> float:
+    """Density [rad^2/s^3] of the random walk of the unit's yaw-origin drift rate, from
+    ``cfg.unit_drift_change`` [deg/min per sqrt(min)]."""
+    return float((np.radians(cfg.unit_drift_change) / 60.0 / np.sqrt(60.0)) ** 2)
 
 
 def noise_model(inputs: InsInputs, cfg: ProcessingConfig) -> NoiseModel:
