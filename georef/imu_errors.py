@@ -81,6 +81,14 @@ IMU_PRESETS: dict[str, ImuErrorModel] = {
         gyro_bias_corr_time_s=100.0, accel_vrw_mps_rt_h=0.2, accel_turn_on_bias_mg=20.0,
         accel_bias_instability_mg=0.2, accel_bias_corr_time_s=100.0,
     ),
+    # Consumer / phone-grade MEMS (smartphone or cheap flight-controller IMU): noise densities of about
+    # 0.008 deg/s/sqrt(Hz) and 200 ug/sqrt(Hz), zero-rate offset of about 1 deg/s (0.017 rad/s) and
+    # zero-g offset of about 30 mg (0.3 m/s^2) at turn-on. Larger forced biases: SimConfig.gyro_bias_rad_s.
+    "consumer-phone": ImuErrorModel(
+        gyro_arw_deg_rt_h=0.5, gyro_turn_on_bias_deg_h=3600.0, gyro_bias_instability_deg_h=20.0,
+        gyro_bias_corr_time_s=100.0, accel_vrw_mps_rt_h=0.12, accel_turn_on_bias_mg=30.0,
+        accel_bias_instability_mg=0.2, accel_bias_corr_time_s=100.0,
+    ),
     # Tactical-grade FOG IMU.
     "tactical-fog": ImuErrorModel(
         gyro_arw_deg_rt_h=0.02, gyro_turn_on_bias_deg_h=1.0, gyro_bias_instability_deg_h=0.3,

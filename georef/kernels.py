@@ -73,10 +73,23 @@ FLOAT, INT, BOOL = ("float64", 0), ("int64", 0), ("bool", 0)
 KERNELS: dict[str, KernelSpec] = {
     "ins": KernelSpec(
         "georef.fusion.ins_kernel",
-        {"run_ins": KernelFunction(
-            args=(F1, F2, F2, INT, F1, F2, I1, F1, F2, F2, F1, F1, INT, FLOAT, INT, F2, BOOL, BOOL),
-            returns=(F2, F2, F2, F3, B1, F2, F2, I1, F2, F2, F2, I1))},
-        ("fusion/ins_kernel.py", "fusion/strapdown.py", "frames/kernels.py")),
+        {"ekf_forward": KernelFunction(
+            args=(F1, F2, F2, INT, F1, F2, I1, F1, F2, F2, F1, INT, FLOAT, INT, F2, BOOL, F2),
+            returns=(I1, F1, F3, F3, F3, F2, I1, F2, F3, F3, F1, I1, I1, F2, F3, I1, I1, F1)),
+         "rts_backward": KernelFunction(
+            args=(F1, F3, F3, F3, F2, B1, F1, I1, F2, F3, F2, I1, I1, F2, F3, I1, BOOL),
+            returns=(F2, F2, F2)),
+         "corrected": KernelFunction(args=(F1, F1), returns=(F1,)),
+         "finish_rows": KernelFunction(
+            args=(F1, F2, I1, F2, F2, F3, F3),
+            returns=(B1, F2, F2, F3, F2, F2, F2))},
+        ("fusion/ins_kernel.py", "fusion/strapdown.py", "frames/kernels.py", "frames/earth.py")),
+    "align": KernelSpec(
+        "georef.fusion.alignment_kernel",
+        {"preintegrate": KernelFunction(
+            args=(F1, F2, F2, INT, F1, F1, F1, F1),
+            returns=(F3, F2, F2, F2, F2, F3, F3, F3, F3, F3, F3))},
+        ("fusion/alignment_kernel.py", "frames/kernels.py", "frames/earth.py")),
     "axis": KernelSpec(
         "georef.fusion.axis_kernel",
         {"axis_filter": KernelFunction(args=(F1, F2, F1, F2, F2, F1, F1, F1, FLOAT, INT),

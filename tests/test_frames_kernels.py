@@ -54,3 +54,20 @@ def test_euler_forms_agree():
         C = euler_to_dcm(r, p, 2.5 * y)
         np.testing.assert_allclose(kernels.dcm_to_euler(C), dcm_to_euler(C), atol=1e-14)
         np.testing.assert_allclose(kernels.euler_error_jacobian(C), euler_error_jacobian(r, p, 2.5 * y), atol=1e-12)
+
+
+def test_so3_exponential_and_right_jacobian_against_scipy():
+    """exp([v x]) against scipy's rotation vectors; the right Jacobian against finite differences."""
+    from scipy.spatial.transform import Rotation
+
+    for scale in (1e-9, 1e-4, 0.3, 2.5):
+        for v in RNG.normal(size=(10, 3)) * scale:
+            np.testing.assert_allclose(kernels.so3_exp(v), Rotation.from_rotvec(v).as_matrix(), atol=1e-14)
+            Jr = np.empty((3, 3))
+            kernels.so3_right_jacobian_into(v, Jr)
+            for i in range(3):
+                d = np.zeros(3)
+                d[i] = 1e-7
+                # exp(v + d) = exp(v) exp(Jr d)  ->  log(exp(v)^T exp(v + d)) / 1e-7 = Jr[:, i]
+                rel = Rotation.from_matrix(kernels.so3_exp(v).T @ kernels.so3_exp(v + d)).as_rotvec() / 1e-7
+                np.testing.assert_allclose(rel, Jr[:, i], atol=1e-6)

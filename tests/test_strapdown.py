@@ -18,12 +18,12 @@ from georef.frames import (
     radii_of_curvature,
     wrap_pi,
 )
-from georef.fusion.ins_kernel import correct_state, system_matrix
+from georef.fusion.ins_kernel import N_NOISE, NS, NX_NAV, correct_state, system_matrix
 from georef.fusion.strapdown import run_free_inertial
 from georef.sim.trajectory import FlightPlan, fly
 
 
-def _state(lat, lon, h, v_n, C_b_n, size=20):
+def _state(lat, lon, h, v_n, C_b_n, size=NS):
     x = np.zeros(size)
     x[0], x[1], x[2] = lat, lon, h
     x[3:6] = v_n
@@ -104,10 +104,12 @@ def test_error_dynamics_match_finite_differences():
         delta = np.zeros(15)
         delta[k] = scales[k]
         x_hat = x_true.copy()
-        correct_state(x_hat, -np.concatenate([delta, np.zeros(4)]))
+        correct_state(x_hat, -np.concatenate([delta, np.zeros(NX_NAV - 15)]))
         states = [x_true.copy(), x_hat]
-        Phi = np.eye(19)
+        Phi = np.eye(NX_NAV)
         C = np.empty((3, 3))
+        F = np.zeros((NX_NAV, NX_NAV))
+        noise = np.zeros(N_NOISE)  # no bias or unit-error decay
         buffers = [[np.zeros(3) for _ in range(4)] for _ in range(2)]
         for j in range(1, len(t)):
             dt = t[j] - t[j - 1]
@@ -120,11 +122,11 @@ def test_error_dynamics_match_finite_differences():
                 mechanise(x, dth, dv, dth_p, dv_p, dt, C)
                 dth_p[:], dv_p[:] = dth, dv
             C_mid = 0.5 * (C_prev + quat_to_dcm(states[0][6:10]))
-            F = system_matrix(states[0], C_mid, C_mid @ (0.5 * (accel[j - 1] + accel[j])), 0.0, 0.0, 0.0)
+            system_matrix(states[0], C_mid, C_mid @ (0.5 * (accel[j - 1] + accel[j])), noise, F)
             Fd = F * dt
-            Phi = (np.eye(19) + Fd + 0.5 * Fd @ Fd) @ Phi
+            Phi = (np.eye(NX_NAV) + Fd + 0.5 * Fd @ Fd) @ Phi
         measured = _error(states[1], states[0])
-        predicted = (Phi @ np.concatenate([delta, np.zeros(4)]))[:15]
+        predicted = (Phi @ np.concatenate([delta, np.zeros(NX_NAV - 15)]))[:15]
         scale = np.abs(predicted) / scales + 1e-9
         # first-order agreement for every response that is not negligible
         big = scale > 1e-2 * scale.max()

@@ -200,27 +200,63 @@ def _print_summary(result: Any, output: Path, verbose: bool) -> None:
 @_user_errors
 def simulate(
     folder: Annotated[Path, typer.Argument(help="Folder to write POS.txt, Kamera.txt, truth.csv, flight.toml.")],
+    vehicle: Annotated[str, typer.Option(
+        help="helicopter (survey strips, POS unit with its own attitude), multicopter (hover, then legs flown "
+             "sideways with the heading held; no POS unit) or car (roads, turns, stops; no POS unit).")
+    ] = "helicopter",
     duration: Annotated[float, typer.Option(help="Flight length in seconds.")] = 180.0,
     rate: Annotated[float, typer.Option(help="POS row rate in Hz (50-200).")] = 50.0,
     camera_rate: Annotated[float, typer.Option(help="Exposures per second.")] = 3.0,
     seed: Annotated[int, typer.Option(help="Random seed: the same seed gives the same files.")] = 1,
-    imu: Annotated[str, typer.Option(help="IMU error preset: mems-ivru, mems-consumer, tactical-fog.")] = "mems-ivru",
+    imu: Annotated[str | None, typer.Option(
+        help="IMU error preset: mems-ivru, mems-consumer, consumer-phone, tactical-fog (default: mems-ivru for "
+             "the helicopter, mems-consumer otherwise).")] = None,
+    gyro_bias: Annotated[str | None, typer.Option(
+        help="Force the gyro turn-on bias X,Y,Z in deg/s, body axes (x fwd, y right, z down), e.g. 0,0,4 "
+             "(0.07 rad/s, a phone's z bias).")] = None,
+    accel_bias: Annotated[str | None, typer.Option(
+        help="Force the accelerometer turn-on bias X,Y,Z in m/s^2, body axes, e.g. 0.3,-0.2,0.5.")] = None,
+    vibration: Annotated[str | None, typer.Option(
+        help="Vibration: none, rotor (16 Hz blade-pass sinusoids + harmonic, 0.4 m/s^2, 0.2 deg/s), white "
+             "(Gaussian 0.25/0.25/0.4 m/s^2, 0.1 deg/s at 200 Hz averaged to the row rate) or narrowband "
+             "(random, 20 +- 2 Hz, 0.3/0.3/0.5 m/s^2, 0.15 deg/s RMS). Default: rotor for the helicopter, "
+             "narrowband for the multicopter, white for the car.")] = None,
+    vibration_level: Annotated[float, typer.Option(
+        help="Multiplies the vibration amplitudes (1 = the values above, 0 = none).")] = 1.0,
+    gnss_rate: Annotated[float, typer.Option(
+        help="GNSS fix rate in Hz (1, 5, 10...). POS.txt tags fixes to whole seconds, so above 1 Hz use "
+             "--generic and georef fuse.")] = 1.0,
     outage: Annotated[list[str] | None, typer.Option(
         help="GNSS outage START,LENGTH in seconds from the flight start; repeatable.")] = None,
     outlier: Annotated[list[str] | None, typer.Option(
         help="GNSS outlier TIME,SIZE (s from start, metres); repeatable.")] = None,
+    hover: Annotated[float | None, typer.Option(
+        help="Multicopter: seconds of hover at the start (default 15).")] = None,
+    heading_policy: Annotated[str | None, typer.Option(
+        help="Multicopter: fixed (heading held north, legs flown sideways; default), track (heading along "
+             "each leg) or rotating (6 deg/s).")] = None,
+    speed: Annotated[float | None, typer.Option(
+        help="Multicopter leg speed (2-12 m/s, default 8) or car cruising speed (up to 15 m/s, default 12), "
+             "m/s.")] = None,
     crs: Annotated[str | None, typer.Option(
         help="Projected CRS to put in the written flight.toml, e.g. EPSG:3765.")] = None,
     generic: Annotated[bool, typer.Option(
         help="Also write imu.csv, gnss.csv and truth_traj.csv (the generic inputs of georef fuse).")] = False,
+    magnetometer: Annotated[bool, typer.Option(
+        help="Add mag_x, mag_y, mag_z [uT, body axes] to imu.csv (48 uT field, inclination 60 deg, declination "
+             "4 deg, hard iron, 0.3 uT noise); implies --generic.")] = False,
+    autopilot: Annotated[bool, typer.Option(
+        help="Add the autopilot's roll, pitch, yaw [deg; yaw from true north with a ~3 deg error] to imu.csv; "
+             "implies --generic.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors.")] = False,
 ) -> None:
-    """Simulate a helicopter survey flight (MEMS IMU with vibration, 1 Hz GNSS) with its truth."""
+    """Simulate a flight or drive with its truth: helicopter survey (default), multicopter or car."""
+    import dataclasses
+
     from georef.sim.files import write_flight, write_generic
-    from georef.sim.flight import SimConfig
+    from georef.sim.flight import VEHICLES, SimConfig
     from georef.sim.flight import simulate as run
-    from georef.sim.sensors import GnssModel
-    from georef.sim.trajectory import FlightPlan
+    from georef.sim.sensors import AutopilotModel, GnssModel, MagnetometerModel, VibrationModel
 
     def pairs(values: list[str] | None, what: str) -> list[tuple[float, float]]:
         result = []
@@ -231,27 +267,50 @@ def simulate(
             result.append((float(parts[0]), float(parts[1])))
         return result
 
-    cfg = SimConfig(plan=FlightPlan(duration_s=duration, seed=seed), imu_preset=imu, pos_rate_hz=rate,
-                    camera_rate_hz=camera_rate, seed=seed,
-                    gnss=GnssModel(outages=pairs(outage, "--outage"), outliers=pairs(outlier, "--outlier")))
+    if vehicle not in VEHICLES:
+        raise typer.BadParameter(f"--vehicle must be one of {', '.join(VEHICLES)}, got {vehicle!r}")
+    plan_options = {"hover": hover, "heading-policy": heading_policy}
+    for name, value in plan_options.items():
+        if value is not None and vehicle != "multicopter":
+            raise typer.BadParameter(f"--{name} applies to --vehicle multicopter only")
+    if speed is not None and vehicle == "helicopter":
+        raise typer.BadParameter("--speed applies to --vehicle multicopter or car")
+    changes: dict[str, Any] = {
+        "pos_rate_hz": rate, "camera_rate_hz": camera_rate,
+        "gnss": GnssModel(rate_hz=gnss_rate, outages=pairs(outage, "--outage"), outliers=pairs(outlier, "--outlier")),
+    }
+    if imu is not None:
+        changes["imu_preset"] = imu
+    if vibration is not None or vibration_level != 1.0:
+        kind = vibration or {"helicopter": "rotor", "multicopter": "narrowband", "car": "white"}[vehicle]
+        changes["vibration"] = VibrationModel.of_kind(kind, level=vibration_level)
+    if gyro_bias is not None:
+        changes["gyro_bias_rad_s"] = tuple(np.radians(_triple(gyro_bias, "--gyro-bias", "deg/s")))
+    if accel_bias is not None:
+        changes["accel_bias_mps2"] = _triple(accel_bias, "--accel-bias", "m/s^2")
+    if magnetometer:
+        changes["magnetometer"] = MagnetometerModel()
+    if autopilot:
+        changes["autopilot"] = AutopilotModel()
+    cfg = SimConfig.for_vehicle(vehicle, duration_s=duration, seed=seed, **changes)
+    plan_changes = {"hover_s": hover, "heading_policy": heading_policy,
+                    "speed_mps" if vehicle == "multicopter" else "cruise_speed_mps": speed}
+    plan_changes = {k: v for k, v in plan_changes.items() if v is not None}
+    if plan_changes:
+        cfg.plan = dataclasses.replace(cfg.plan, **plan_changes)
+    generic = generic or magnetometer or autopilot
     progress, step = _stage_progress(quiet, total=2)
-    if progress is not None:
-        with progress:
-            step("simulating flight")
-            flight = run(cfg)
-            step("writing files")
-            paths = write_flight(flight, folder, crs=crs)
-            if generic:
-                paths.update(write_generic(flight, folder))
-    else:
+    with progress if progress is not None else contextlib.nullcontext():
+        step("simulating")
         flight = run(cfg)
+        step("writing files")
         paths = write_flight(flight, folder, crs=crs)
         if generic:
             paths.update(write_generic(flight, folder))
     if not quiet:
         out.print(f"wrote {', '.join(str(p) for p in paths.values())}")
-        out.print(f"{len(flight.pos)} POS rows at {rate:g} Hz, {len(flight.exposures)} exposures, "
-                  f"{len(flight.gnss_fixes)} GNSS fixes")
+        out.print(f"{vehicle}: {len(flight.pos)} POS rows at {rate:g} Hz, {len(flight.exposures)} exposures, "
+                  f"{len(flight.gnss_fixes)} GNSS fixes at {gnss_rate:g} Hz")
 
 
 @app.command()

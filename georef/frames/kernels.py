@@ -121,3 +121,68 @@ def euler_error_jacobian(C: np.ndarray) -> np.ndarray:
     tp, cp = math.tan(pitch), math.cos(pitch)
     E = np.array([[1.0, sr * tp, cr * tp], [0.0, cr, -sr], [0.0, sr / cp, cr / cp]])
     return E @ C.T
+
+
+@njit(cache=True)
+def add_skew(v: np.ndarray, M: np.ndarray, r0: int, c0: int, sign: float) -> None:
+    """Add ``sign * [v x]`` (the cross-product matrix of the 3-vector ``v``) into ``M[r0:r0+3, c0:c0+3]``."""
+    M[r0 + 0, c0 + 1] -= sign * v[2]
+    M[r0 + 0, c0 + 2] += sign * v[1]
+    M[r0 + 1, c0 + 0] += sign * v[2]
+    M[r0 + 1, c0 + 2] -= sign * v[0]
+    M[r0 + 2, c0 + 0] -= sign * v[1]
+    M[r0 + 2, c0 + 1] += sign * v[0]
+
+
+@njit(cache=True)
+def skew_matrix(v: np.ndarray) -> np.ndarray:
+    """``[v x]`` (3, 3) of a 3-vector ``v``: ``[v x] u = v x u``."""
+    S = np.zeros((3, 3))
+    add_skew(v, S, 0, 0, 1.0)
+    return S
+
+
+@njit(cache=True)
+def _so3_into(v: np.ndarray, a: float, b: float, out: np.ndarray) -> None:
+    """``out = I + a [v x] + b [v x]^2`` (3, 3)."""
+    x, y, z = v[0], v[1], v[2]
+    out[0, 0] = 1.0 - b * (y * y + z * z)
+    out[1, 1] = 1.0 - b * (x * x + z * z)
+    out[2, 2] = 1.0 - b * (x * x + y * y)
+    out[0, 1] = -a * z + b * x * y
+    out[1, 0] = a * z + b * x * y
+    out[0, 2] = a * y + b * x * z
+    out[2, 0] = -a * y + b * x * z
+    out[1, 2] = -a * x + b * y * z
+    out[2, 1] = a * x + b * y * z
+
+
+@njit(cache=True)
+def so3_exp_into(v: np.ndarray, out: np.ndarray) -> None:
+    """Rotation matrix ``exp([v x])`` of a rotation vector ``v`` [rad] (Rodrigues) into ``out`` (3, 3)."""
+    a2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+    a = math.sqrt(a2)
+    if a < 1e-6:
+        _so3_into(v, 1.0 - a2 / 6.0, 0.5 - a2 / 24.0, out)
+    else:
+        _so3_into(v, math.sin(a) / a, (1.0 - math.cos(a)) / a2, out)
+
+
+@njit(cache=True)
+def so3_exp(v: np.ndarray) -> np.ndarray:
+    """Rotation matrix ``exp([v x])`` (3, 3) of a rotation vector ``v`` [rad]."""
+    out = np.empty((3, 3))
+    so3_exp_into(v, out)
+    return out
+
+
+@njit(cache=True)
+def so3_right_jacobian_into(v: np.ndarray, out: np.ndarray) -> None:
+    """Right Jacobian ``J_r(v)`` of SO(3) into ``out`` (3, 3):
+    ``exp([(v + d) x]) ≈ exp([v x]) exp([(J_r(v) d) x])`` for small d."""
+    a2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+    a = math.sqrt(a2)
+    if a < 1e-6:
+        _so3_into(v, -(0.5 - a2 / 24.0), 1.0 / 6.0 - a2 / 120.0, out)
+    else:
+        _so3_into(v, -(1.0 - math.cos(a)) / a2, (a - math.sin(a)) / (a2 * a), out)

@@ -142,6 +142,11 @@ def rotvec_to_quat(rotvec: ArrayLike) -> Array:
     return np.concatenate([np.cos(half), factor * rotvec], axis=-1)
 
 
+def rotvec_to_dcm(rotvec: ArrayLike) -> Array:
+    """Rotation vector(s) [rad] (..., 3) to the rotation matrix ``exp([v x])`` (..., 3, 3)."""
+    return quat_to_dcm(rotvec_to_quat(rotvec))
+
+
 def quat_to_rotvec(q: ArrayLike) -> Array:
     """Unit scalar-first quaternion(s) (..., 4) to rotation vectors [rad] (..., 3), angle in [0, pi]."""
     q = np.asarray(q, dtype=float)

@@ -43,7 +43,7 @@ from georef.frames.rotations import (
     rotvec_to_quat,
     wrap_pi,
 )
-from georef.fusion.ins import inputs_from_pos, noise_model, solve_ins, unit_drift_psd
+from georef.fusion.ins import inputs_from_pos, solve_ins, unit_drift_psd
 from georef.fusion.solution import NavSolution
 
 CAUCHY_K = 4.0
@@ -78,10 +78,11 @@ def solve_graph(log, cfg: ProcessingConfig) -> NavSolution:
 
     # rotation of each point's NED into the plane: C_n_t = C_e_t C_n_e(lat, lon)
     C_n_t_rows = C_e_t @ C_n_e(rts.lat, rts.lon)
-    noise = noise_model(inputs, cfg)
+    # the noise model the EKF + RTS fitted to this flight's data
+    noise = rts.diagnostics.noise
     params = gtsam.PreintegrationCombinedParams.MakeSharedD(float(normal_gravity(lat0, h0)))
-    params.setAccelerometerCovariance(np.eye(3) * noise.q_vel)
-    params.setGyroscopeCovariance(np.eye(3) * noise.q_att)
+    params.setAccelerometerCovariance(np.diag([noise.q_vel_h, noise.q_vel_h, noise.q_vel_v]))
+    params.setGyroscopeCovariance(np.diag([noise.q_att_h, noise.q_att_h, noise.q_att_v]))
     params.setIntegrationCovariance(np.eye(3) * 1e-8)
     params.setBiasAccCovariance(np.eye(3) * max(noise.q_ba, 1e-12))
     params.setBiasOmegaCovariance(np.eye(3) * max(noise.q_bg, 1e-16))
@@ -105,7 +106,8 @@ def solve_graph(log, cfg: ProcessingConfig) -> NavSolution:
             np.concatenate([np.full(3, np.radians(1.0)), pos_sigma]))),
         gtsam.PriorFactorVector(V(0), v_t[first], gtsam.noiseModel.Isotropic.Sigma(3, 0.5)),
         gtsam.PriorFactorConstantBias(B(0), values.atConstantBias(B(0)), gtsam.noiseModel.Diagonal.Sigmas(
-            np.concatenate([np.full(3, noise.sigma_ba0), np.full(3, noise.sigma_bg0)])))]
+            np.sqrt(np.concatenate([np.diag(rts.diagnostics.alignment.covariance)[12:15],
+                                    np.diag(rts.diagnostics.alignment.covariance)[9:12]])) * 3.0))]
     gyro = inputs.gyro
     # each row's own normal gravity, turned into the plane: f' = f + C_t_b (g_t - g_plane) makes GTSAM's constant
     # plane gravity exact (the local vertical is tilted by d/R from the plane's down axis)

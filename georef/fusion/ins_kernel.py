@@ -1,20 +1,28 @@
-"""Compiled loosely coupled INS/GNSS error-state EKF and its RTS smoother.
+"""Compiled loosely coupled INS/GNSS error-state EKF, its RTS smoother, and the noise statistics of an EM step.
 
-Error state (19): ``δr`` NED position error [m] (0-2), ``δv`` NED velocity error [m/s] (3-5), ``φ`` attitude
-error [rad] with ``Ĉ_b_n = (I - [φ x]) C_b_n`` (6-8), ``δb_g`` [rad/s] (9-11), ``δb_a`` [m/s^2] (12-14), and
-four states of the POS unit's own attitude output, used only when it aids the filter: its roll and pitch
-errors (Gauss-Markov, 15-16), the offset ``d`` of its yaw origin (17) and that offset's drift rate (18).
-Errors are estimate minus truth. The nominal state (20) is the strapdown state (16) followed by
-``d``, ``d_dot``, the unit's roll error and pitch error.
+Layouts (named indices below, one order for the error state and the nominal state):
 
-* The nominal state is mechanised at every IMU row (:mod:`georef.fusion.strapdown`).
-* The covariance is propagated at *covariance epochs*: every ``stride`` rows and at every GNSS update, with
-  ``Φ = I + F Δt + (F Δt)^2 / 2`` where F uses the interval's mean ``C_b_n`` and ``f_n`` (so fast attitude
-  changes within the interval are averaged, not sampled).
-* GNSS antenna position updates through the lever arm, at the fix's own time (the row after the fix, moved
-  back along the velocity), with a chi-square innovation gate; the error state is fed back (closed loop).
-* The RTS smoother runs backwards over the covariance epochs and corrects every row by interpolating the
-  smoothed error between epochs.
+* error state, estimate minus truth: ``δr`` NED position [m] (POS), ``δv`` NED velocity [m/s] (VEL), attitude
+  ``φ`` [rad] with ``Ĉ_b_n = (I - [φ x]) C_b_n`` (ATT), gyro bias [rad/s] (BG), accelerometer bias [m/s^2] (BA),
+  the POS unit's own roll/pitch errors [rad] (UNIT_LEVEL, Gauss-Markov), the offset ``d`` of its yaw origin
+  [rad] (UNIT_YAW) and that offset's drift rate [rad/s] (UNIT_DRIFT); with ``NX_CAL`` states also the GNSS lever
+  arm [m, body] (LEVER) and the GNSS time-tag latency [s] (LATENCY), random constants;
+* nominal state: the same order with latitude, longitude [rad] and ellipsoidal height [m] for the position and
+  the body-to-NED quaternion (scalar first) for the attitude (``X_*`` indices, ``NS`` entries). The lever arm
+  and latency are always carried in the nominal state; they are estimated only when the filter has ``NX_CAL``
+  states.
+
+The forward filter (:func:`ekf_forward`) mechanises every IMU row and propagates the covariance at *covariance
+epochs* (every ``stride`` rows and at every update): :func:`propagate` builds F at the epoch's mean attitude and
+specific force and discretises it to third order. At an epoch it may fuse the unit's attitude
+(:func:`unit_attitude_innovation`) and GNSS fixes (:func:`gnss_innovation`), each through :func:`kalman_update`
+with a chi-square gate, and feeds the correction back (closed loop). When ``max_rejects`` fixes in a row are
+rejected it stops and reports the first of them, so that the caller can re-align there (divergence recovery).
+
+The smoother (:func:`rts_backward`) runs over the epochs of one or more filter segments and, when asked, adds up
+for every noise block the statistics of an expectation-maximisation step (Shumway & Stoffer 1982): the smoothed
+process-noise and measurement residuals normalised by their modelled covariance, and the trace terms of their
+posterior covariance.
 """
 
 from __future__ import annotations
@@ -25,9 +33,11 @@ import numpy as np
 from numba import njit
 
 from georef.frames.kernels import (
+    add_skew,
     dcm_to_euler,
     earth_rate,
     euler_error_jacobian,
+    gravity,
     quat_from_rotvec,
     quat_mul,
     quat_normalise,
@@ -37,174 +47,349 @@ from georef.frames.kernels import (
 )
 from georef.fusion.strapdown import increments, mechanise
 
-NX = 19
-NS = 20
+# ---- error state ------------------------------------------------------------------------------------------
+POS = 0
+VEL = 3
+ATT = 6
+BG = 9
+BA = 12
+UNIT_LEVEL = 15
+UNIT_YAW = 17
+UNIT_DRIFT = 18
+LEVER = 19
+LATENCY = 22
+NX_NAV = 19
+NX_CAL = 23
+
+# ---- nominal state (same order; quaternion for the attitude) ----------------------------------------------
+X_LAT = 0
+X_LON = 1
+X_HGT = 2
+X_VEL = 3
+X_QUAT = 6
+X_BG = 10
+X_BA = 13
+X_UNIT_LEVEL = 16
+X_UNIT_YAW = 18
+X_UNIT_DRIFT = 19
+X_LEVER = 20
+X_LATENCY = 23
+NS = 24
+
+# ---- noise vector (continuous-time densities, variances and scale factors) --------------------------------
+Q_VEL_H = 0        # m^2/s^3, white specific force, north and east
+Q_VEL_V = 1        # m^2/s^3, down
+Q_ATT_H = 2        # rad^2/s, white angular rate about north and east
+Q_ATT_V = 3        # rad^2/s, about down
+Q_BG = 4           # rad^2/s^3, gyro-bias Gauss-Markov drive
+INV_TAU_G = 5      # 1/s
+Q_BA = 6           # m^2/s^5, accelerometer-bias drive
+INV_TAU_A = 7      # 1/s
+Q_UNIT_LEVEL = 8   # rad^2/s, drive of the unit's roll/pitch errors
+INV_TAU_UNIT = 9   # 1/s
+Q_UNIT_DRIFT = 10  # rad^2/s^3, random walk of the unit's yaw-origin drift rate
+R_UNIT_LEVEL = 11  # rad^2, white noise of the unit's roll and pitch
+R_UNIT_YAW = 12    # rad^2, of its yaw
+R_SCALE_H = 13     # factor on the GNSS north/east variances
+R_SCALE_V = 14     # factor on the GNSS down variance
+N_NOISE = 15
+
+# ---- noise blocks whose EM statistics the smoother adds up ------------------------------------------------
+B_GNSS_H = 0
+B_GNSS_V = 1
+B_UNIT_R_LEVEL = 2
+B_UNIT_R_YAW = 3
+B_VEL_H = 4
+B_VEL_V = 5
+B_ATT_H = 6
+B_ATT_V = 7
+B_BG = 8
+B_BA = 9
+B_UNIT_LEVEL = 10
+B_UNIT_DRIFT = 11
+N_BLOCKS = 12
+
+# ---- GNSS fix status and why a forward pass stopped -------------------------------------------------------
+FIX_UNUSED = -1
+FIX_REJECTED = 0
+FIX_USED = 1
+STOP_END = 0
+STOP_DIVERGED = 1
 
 
 @njit(cache=True)
-def _skew_into(v: np.ndarray, F: np.ndarray, r0: int, c0: int, sign: float) -> None:
-    F[r0 + 0, c0 + 1] += -sign * v[2]
-    F[r0 + 0, c0 + 2] += sign * v[1]
-    F[r0 + 1, c0 + 0] += sign * v[2]
-    F[r0 + 1, c0 + 2] += -sign * v[0]
-    F[r0 + 2, c0 + 0] += -sign * v[1]
-    F[r0 + 2, c0 + 1] += sign * v[0]
+def continuous_noise(noise: np.ndarray, nx: int) -> np.ndarray:
+    """Diagonal of the continuous-time process-noise density (nx,) from the noise vector."""
+    q = np.zeros(nx)
+    for i in range(2):
+        q[VEL + i] = noise[Q_VEL_H]
+        q[ATT + i] = noise[Q_ATT_H]
+        q[UNIT_LEVEL + i] = noise[Q_UNIT_LEVEL]
+    q[VEL + 2] = noise[Q_VEL_V]
+    q[ATT + 2] = noise[Q_ATT_V]
+    for i in range(3):
+        q[BG + i] = noise[Q_BG]
+        q[BA + i] = noise[Q_BA]
+    q[UNIT_DRIFT] = noise[Q_UNIT_DRIFT]
+    return q
 
 
 @njit(cache=True)
-def system_matrix(x: np.ndarray, C: np.ndarray, f_n: np.ndarray, inv_tau_g: float, inv_tau_a: float,
-                  inv_tau_unit: float) -> np.ndarray:
-    """Continuous-time error dynamics F (19x19) at nominal state ``x`` with C_b_n and f_n [m/s^2].
+def system_matrix(x: np.ndarray, C: np.ndarray, f_n: np.ndarray, noise: np.ndarray, F: np.ndarray) -> None:
+    """Continuous-time error dynamics into ``F`` (nx, nx) at nominal state ``x`` with C_b_n and f_n [m/s^2].
 
-    Blocks as in Shin (2005) / KF-GINS: position in local metres, the phi-angle attitude model.
+    Blocks as in Shin (2005) / KF-GINS: position in local metres, the phi-angle attitude model; gravity, Earth
+    rate and transport rate from :mod:`georef.frames.kernels`.
     """
-    F = np.zeros((NX, NX))
-    lat, h = x[0], x[2]
-    vn, ve, vd = x[3], x[4], x[5]
+    F[:, :] = 0.0
+    lat, h = x[X_LAT], x[X_HGT]
+    vn, ve, vd = x[X_VEL], x[X_VEL + 1], x[X_VEL + 2]
     M, N = radii(lat)
     Mh, Nh = M + h, N + h
     tl = math.tan(lat)
     sl, cl = math.sin(lat), math.cos(lat)
-    w = 7.292115e-5
-    g = 9.780325 * (1.0 + 0.0053024 * sl * sl)  # only in the small vertical-gravity gradient term
+    w_ie = np.empty(3)
+    earth_rate(lat, w_ie)
+    w = math.hypot(w_ie[0], w_ie[2])  # Earth rate magnitude
+    g = gravity(lat, h)
     # position
-    F[0, 0] = -vd / Mh
-    F[0, 2] = vn / Mh
-    F[1, 0] = ve * tl / Nh
-    F[1, 1] = -(vd + vn * tl) / Nh
-    F[1, 2] = ve / Nh
-    F[0, 3] = 1.0
-    F[1, 4] = 1.0
-    F[2, 5] = 1.0
+    F[POS, POS] = -vd / Mh
+    F[POS, POS + 2] = vn / Mh
+    F[POS + 1, POS] = ve * tl / Nh
+    F[POS + 1, POS + 1] = -(vd + vn * tl) / Nh
+    F[POS + 1, POS + 2] = ve / Nh
+    for i in range(3):
+        F[POS + i, VEL + i] = 1.0
     # velocity
-    F[3, 0] = -2.0 * ve * w * cl / Mh - ve * ve / (Mh * Nh * cl * cl)
-    F[3, 2] = vn * vd / Mh**2 - ve * ve * tl / Nh**2
-    F[4, 0] = 2.0 * w * (vn * cl - vd * sl) / Mh + vn * ve / (Mh * Nh * cl * cl)
-    F[4, 2] = (ve * vd + vn * ve * tl) / Nh**2
-    F[5, 0] = 2.0 * w * ve * sl / Mh
-    F[5, 2] = -ve * ve / Nh**2 - vn * vn / Mh**2 + 2.0 * g / (math.sqrt(M * N) + h)
-    F[3, 3] = vd / Mh
-    F[3, 4] = -2.0 * (w * sl + ve * tl / Nh)
-    F[3, 5] = vn / Mh
-    F[4, 3] = 2.0 * w * sl + ve * tl / Nh
-    F[4, 4] = (vd + vn * tl) / Nh
-    F[4, 5] = 2.0 * w * cl + ve / Nh
-    F[5, 3] = -2.0 * vn / Mh
-    F[5, 4] = -2.0 * (w * cl + ve / Nh)
-    _skew_into(f_n, F, 3, 6, 1.0)
+    F[VEL, POS] = -2.0 * ve * w * cl / Mh - ve * ve / (Mh * Nh * cl * cl)
+    F[VEL, POS + 2] = vn * vd / Mh**2 - ve * ve * tl / Nh**2
+    F[VEL + 1, POS] = 2.0 * w * (vn * cl - vd * sl) / Mh + vn * ve / (Mh * Nh * cl * cl)
+    F[VEL + 1, POS + 2] = (ve * vd + vn * ve * tl) / Nh**2
+    F[VEL + 2, POS] = 2.0 * w * ve * sl / Mh
+    F[VEL + 2, POS + 2] = -ve * ve / Nh**2 - vn * vn / Mh**2 + 2.0 * g / (math.sqrt(M * N) + h)
+    F[VEL, VEL] = vd / Mh
+    F[VEL, VEL + 1] = -2.0 * (w * sl + ve * tl / Nh)
+    F[VEL, VEL + 2] = vn / Mh
+    F[VEL + 1, VEL] = 2.0 * w * sl + ve * tl / Nh
+    F[VEL + 1, VEL + 1] = (vd + vn * tl) / Nh
+    F[VEL + 1, VEL + 2] = 2.0 * w * cl + ve / Nh
+    F[VEL + 2, VEL] = -2.0 * vn / Mh
+    F[VEL + 2, VEL + 1] = -2.0 * (w * cl + ve / Nh)
+    add_skew(f_n, F, VEL, ATT, 1.0)
     # biases: the mechanisation subtracts the estimated bias, so f_est - f = -C db_a, w_est - w = -db_g
     for i in range(3):
         for j in range(3):
-            F[3 + i, 12 + j] = -C[i, j]
-            F[6 + i, 9 + j] = C[i, j]
+            F[VEL + i, BA + j] = -C[i, j]
+            F[ATT + i, BG + j] = C[i, j]
     # attitude
-    F[6, 0] = -w * sl / Mh
-    F[6, 2] = ve / Nh**2
-    F[7, 2] = -vn / Mh**2
-    F[8, 0] = -w * cl / Mh - ve / (Mh * Nh * cl * cl)
-    F[8, 2] = -ve * tl / Nh**2
-    F[6, 4] = 1.0 / Nh
-    F[7, 3] = -1.0 / Mh
-    F[8, 4] = -tl / Nh
-    w_in = np.empty(3)
+    F[ATT, POS] = -w * sl / Mh
+    F[ATT, POS + 2] = ve / Nh**2
+    F[ATT + 1, POS + 2] = -vn / Mh**2
+    F[ATT + 2, POS] = -w * cl / Mh - ve / (Mh * Nh * cl * cl)
+    F[ATT + 2, POS + 2] = -ve * tl / Nh**2
+    F[ATT, VEL + 1] = 1.0 / Nh
+    F[ATT + 1, VEL] = -1.0 / Mh
+    F[ATT + 2, VEL + 1] = -tl / Nh
     w_en = np.empty(3)
-    earth_rate(lat, w_in)
-    transport_rate(lat, h, x[3:6], w_en)
-    w_in += w_en
-    _skew_into(w_in, F, 6, 6, -1.0)
+    transport_rate(lat, h, x[X_VEL:X_VEL + 3], w_en)
+    add_skew(w_ie + w_en, F, ATT, ATT, -1.0)
     for i in range(3):
-        F[9 + i, 9 + i] = -inv_tau_g
-        F[12 + i, 12 + i] = -inv_tau_a
+        F[BG + i, BG + i] = -noise[INV_TAU_G]
+        F[BA + i, BA + i] = -noise[INV_TAU_A]
     # the unit's attitude errors: Gauss-Markov roll/pitch, yaw origin with a drift rate
-    F[15, 15] = -inv_tau_unit
-    F[16, 16] = -inv_tau_unit
-    F[17, 18] = 1.0
-    return F
+    F[UNIT_LEVEL, UNIT_LEVEL] = -noise[INV_TAU_UNIT]
+    F[UNIT_LEVEL + 1, UNIT_LEVEL + 1] = -noise[INV_TAU_UNIT]
+    F[UNIT_YAW, UNIT_DRIFT] = 1.0
+
+
+@njit(cache=True)
+def discretise(F: np.ndarray, q: np.ndarray, dT: float, Phi: np.ndarray, Qd: np.ndarray) -> None:
+    """Transition matrix and process-noise covariance of an interval ``dT`` [s], to third order in ``F dT``.
+
+    ``Φ = I + A + A²/2 + A³/6`` with ``A = F dT``; ``Q_d = ∫ Φ(s) diag(q) Φ(s)ᵀ ds`` by its Taylor series
+    ``Q dT + (FQ + QFᵀ) dT²/2 + (F²Q + 2FQFᵀ + QF²ᵀ) dT³/6`` (exact for the double integrator of white
+    specific force, and it carries attitude noise into velocity over long intervals).
+    """
+    n = F.shape[0]
+    A = F * dT
+    A2 = A @ A
+    A3 = A2 @ A
+    FQ = F * q  # F diag(q): columns scaled
+    FQF = FQ @ F.T
+    for i in range(n):
+        for j in range(n):
+            Phi[i, j] = A[i, j] + 0.5 * A2[i, j] + A3[i, j] / 6.0
+            F2Q = A2[i, j] * q[j] / (dT * dT)
+            F2Qt = A2[j, i] * q[i] / (dT * dT)
+            Qd[i, j] = ((FQ[i, j] + FQ[j, i]) * dT * dT / 2.0
+                        + (F2Q + F2Qt + 2.0 * FQF[i, j]) * dT * dT * dT / 6.0)
+        Phi[i, i] += 1.0
+        Qd[i, i] += q[i] * dT
 
 
 @njit(cache=True)
 def correct_state(x: np.ndarray, dx: np.ndarray) -> None:
-    """Remove the estimated error ``dx`` (estimate minus truth) from the nominal state ``x`` in place."""
-    M, N = radii(x[0])
-    h = x[2]
-    x[0] -= dx[0] / (M + h)
-    x[1] -= dx[1] / ((N + h) * math.cos(x[0]))
-    x[2] += dx[2]
+    """Remove the estimated error ``dx`` (estimate minus truth, NX_NAV or NX_CAL entries) from ``x`` in place."""
+    M, N = radii(x[X_LAT])
+    h = x[X_HGT]
+    x[X_LAT] -= dx[POS] / (M + h)
+    x[X_LON] -= dx[POS + 1] / ((N + h) * math.cos(x[X_LAT]))
+    x[X_HGT] += dx[POS + 2]
     for i in range(3):
-        x[3 + i] -= dx[3 + i]
-        x[10 + i] -= dx[9 + i]
-        x[13 + i] -= dx[12 + i]
-    x[18] -= dx[15]
-    x[19] -= dx[16]
-    x[16] -= dx[17]
-    x[17] -= dx[18]
-    q = quat_mul(quat_from_rotvec(dx[6:9]), x[6:10])
+        x[X_VEL + i] -= dx[VEL + i]
+        x[X_BG + i] -= dx[BG + i]
+        x[X_BA + i] -= dx[BA + i]
+    x[X_UNIT_LEVEL] -= dx[UNIT_LEVEL]
+    x[X_UNIT_LEVEL + 1] -= dx[UNIT_LEVEL + 1]
+    x[X_UNIT_YAW] -= dx[UNIT_YAW]
+    x[X_UNIT_DRIFT] -= dx[UNIT_DRIFT]
+    if dx.shape[0] > LEVER:
+        for i in range(3):
+            x[X_LEVER + i] -= dx[LEVER + i]
+        x[X_LATENCY] -= dx[LATENCY]
+    q = quat_mul(quat_from_rotvec(dx[ATT:ATT + 3]), x[X_QUAT:X_QUAT + 4])
     quat_normalise(q)
-    x[6:10] = q
+    x[X_QUAT:X_QUAT + 4] = q
 
 
 @njit(cache=True)
-def _process_noise(q_vel: float, q_att: float, q_bg: float, q_ba: float, q_unit: float, q_drift: float,
-                   dt: float) -> np.ndarray:
-    Q = np.zeros((NX, NX))
+def corrected(x: np.ndarray, dx: np.ndarray) -> np.ndarray:
+    """A copy of the nominal state ``x`` with the error ``dx`` removed (see :func:`correct_state`)."""
+    out = x.copy()
+    correct_state(out, dx)
+    return out
+
+
+@njit(cache=True)
+def propagate(P: np.ndarray, x_epoch: np.ndarray, C_mean: np.ndarray, f_mean: np.ndarray, noise: np.ndarray,
+              dT: float, F: np.ndarray, Phi: np.ndarray, Qd: np.ndarray) -> np.ndarray:
+    """Covariance propagation over one epoch interval ``dT`` [s]; fills F, Φ and Q_d, returns P⁻."""
+    system_matrix(x_epoch, C_mean, f_mean, noise, F)
+    discretise(F, continuous_noise(noise, P.shape[0]), dT, Phi, Qd)
+    return Phi @ P @ Phi.T + Qd
+
+
+@njit(cache=True)
+def unit_attitude_innovation(x: np.ndarray, C: np.ndarray, unit_rpy: np.ndarray, nx: int):
+    """Innovation (predicted minus logged unit roll, pitch, yaw [rad]) and its H (3, nx).
+
+    Model: ``roll_u = roll + e_r``, ``pitch_u = pitch + e_p``, ``yaw_u = yaw - d``.
+    """
+    roll, pitch, yaw = dcm_to_euler(C)
+    z = np.empty(3)
+    z[0] = roll + x[X_UNIT_LEVEL] - unit_rpy[0]
+    z[1] = pitch + x[X_UNIT_LEVEL + 1] - unit_rpy[1]
+    z[2] = yaw - x[X_UNIT_YAW] - unit_rpy[2]
+    z[2] = (z[2] + math.pi) % (2.0 * math.pi) - math.pi
+    H = np.zeros((3, nx))
+    # Ĉ = exp(-[φ x]) C, so the estimated Euler angles exceed the true ones by -J φ
+    J = euler_error_jacobian(C)
     for i in range(3):
-        Q[i, i] = q_vel * dt**3 / 3.0
-        Q[i, 3 + i] = q_vel * dt**2 / 2.0
-        Q[3 + i, i] = q_vel * dt**2 / 2.0
-        Q[3 + i, 3 + i] = q_vel * dt
-        Q[6 + i, 6 + i] = q_att * dt
-        Q[9 + i, 9 + i] = q_bg * dt
-        Q[12 + i, 12 + i] = q_ba * dt
-    Q[15, 15] = q_unit * dt
-    Q[16, 16] = q_unit * dt
-    Q[18, 18] = q_drift * dt
-    return Q
+        for j in range(3):
+            H[i, ATT + j] = -J[i, j]
+    H[0, UNIT_LEVEL] = 1.0
+    H[1, UNIT_LEVEL + 1] = 1.0
+    H[2, UNIT_YAW] = -1.0
+    return z, H
 
 
 @njit(cache=True)
-def _apply_update(x, P, H, z, R, S_inv, C, dx_total):
-    """Kalman update in Joseph form, fed back into the nominal state; returns the new covariance."""
-    K = P @ H.T @ S_inv
+def gnss_innovation(x: np.ndarray, C: np.ndarray, fix: np.ndarray, lag: float, nx: int):
+    """Innovation (predicted minus measured antenna position, NED metres) and its H (3, nx).
+
+    ``fix`` = (lat, lon [rad], h [m]); the fix was measured ``lag + latency`` seconds before the nominal
+    state's time, so the prediction is moved back along the velocity.
+    """
+    M, N = radii(x[X_LAT])
+    lever_n = C @ x[X_LEVER:X_LEVER + 3]
+    back = lag + x[X_LATENCY]
+    z = np.empty(3)
+    z[0] = (x[X_LAT] - fix[0]) * (M + x[X_HGT]) + lever_n[0] - x[X_VEL] * back
+    z[1] = (x[X_LON] - fix[1]) * (N + x[X_HGT]) * math.cos(x[X_LAT]) + lever_n[1] - x[X_VEL + 1] * back
+    z[2] = -(x[X_HGT] - fix[2]) + lever_n[2] - x[X_VEL + 2] * back
+    H = np.zeros((3, nx))
+    for i in range(3):
+        H[i, POS + i] = 1.0
+        H[i, VEL + i] = -back
+    # Ĉ l = C l + (C l) x φ
+    add_skew(lever_n, H, 0, ATT, 1.0)
+    if nx > LEVER:
+        for i in range(3):
+            for j in range(3):
+                H[i, LEVER + j] = C[i, j]
+            H[i, LATENCY] = -x[X_VEL + i]
+    return z, H
+
+
+@njit(cache=True)
+def kalman_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, z: np.ndarray, S_inv: np.ndarray, C: np.ndarray,
+                  dx_total: np.ndarray) -> np.ndarray:
+    """Kalman update with the inverse innovation covariance ``S_inv``, fed back into ``x``; returns the new P.
+
+    ``P - K S Kᵀ`` (symmetrised by the caller) rather than the Joseph form: with the optimal gain they are
+    equal, and this costs O(n²) instead of two n³ products; in double precision with symmetrisation it stays
+    positive definite for these state sizes.
+    """
+    PHt = P @ H.T
+    K = PHt @ S_inv
     dx = K @ z
-    IKH = np.eye(P.shape[0]) - K @ H
     correct_state(x, dx)
-    quat_to_dcm(x[6:10], C)
+    quat_to_dcm(x[X_QUAT:X_QUAT + 4], C)
     dx_total += dx
-    return IKH @ P @ IKH.T + K @ R @ K.T
+    return P - K @ PHt.T
 
 
 @njit(cache=True)
-def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fix, lever, noise, stride,
-                gate_chi2, max_rejects, unit_rpy, unit_aiding, keep_predicted):
-    """Forward error-state EKF.
+def innovation_covariance(P: np.ndarray, H: np.ndarray, r: np.ndarray) -> np.ndarray:
+    S = H @ P @ H.T
+    for i in range(3):
+        S[i, i] += r[i]
+    return S
 
-    Inputs: row times ``t`` (N,) s; ``gyro`` rad/s and ``accel`` m/s^2 (N, 3) body frame; the start row and
-    its nominal state ``x0`` (16,) and covariance ``P0`` (15, 15); per GNSS fix: the row at or after it
-    ``fix_row``, ``fix_lag`` = t[row] - t_fix [s], antenna ``z_fix`` (lat, lon [rad], h [m]), NED variances
-    ``r_fix`` [m^2]; body lever arm IMU -> antenna [m]; ``noise`` = (q_vel [m^2/s^3], q_att [rad^2/s],
-    q_bg [rad^2/s^3], q_ba [m^2/s^5], 1/tau_g, 1/tau_a [1/s], q_unit [rad^2/s], 1/tau_unit [1/s],
-    q_drift [rad^2/s^3], unit roll/pitch white variance, unit yaw white variance [rad^2]).
-    With ``unit_aiding``, the unit's roll, pitch and yaw ``unit_rpy`` (N, 3) [rad] are fused at every GNSS
-    update row and at least once a second (also in GNSS outages): ``roll_u = roll + e_r``,
-    ``pitch_u = pitch + e_p``, ``yaw_u = yaw - d``.
 
-    Returns the nominal state at every row (N, 20) and, per covariance epoch: row, interval [s], P⁻ (only
-    with ``keep_predicted``; the smoother recomputes it), P⁺, Φ, the feedback correction; per fix: innovation
-    (NED m), its variance, status (1 used, 0 rejected, 2 forced, -1 unused).
+@njit(cache=True)
+def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fix, noise, stride, gate_chi2,
+                max_rejects, unit_rpy, unit_aiding, nav):
+    """One segment of the forward error-state EKF, from ``start_row`` until the end or a divergence.
+
+    Inputs: row times ``t`` (N,) s; ``gyro`` rad/s and ``accel`` m/s^2 (N, 3) body frame; the start row, its
+    nominal state ``x0`` (NS,) and covariance ``P0`` (nx, nx) with nx = NX_NAV or NX_CAL; per GNSS fix: the row
+    at or after it ``fix_row``, ``fix_lag`` = t[row] - t_fix [s], antenna ``z_fix`` (lat, lon [rad], h [m]) and
+    NED variances ``r_fix`` [m^2] (before the R_SCALE factors); the noise vector (N_NOISE,); covariance epochs
+    every ``stride`` rows; the chi-square gate; ``max_rejects`` consecutive rejected fixes stop the segment
+    (0: never). With ``unit_aiding`` the unit's roll, pitch, yaw ``unit_rpy`` (N, 3) [rad] are fused at every
+    GNSS epoch and at least once a second. The nominal state of every row is written into ``nav`` (N, NS).
+
+    Returns per covariance epoch: row, interval [s], P⁻, P⁺, Φ, the feedback correction; per fix: epoch,
+    innovation relative to the epoch's pre-update error, H, innovation covariance, normalised innovation
+    squared, status; per unit update: epoch, innovation, H, status; ``stop`` = (last row, first fix of the
+    rejected run, STOP_END or STOP_DIVERGED); and the innovation log-likelihood of the used GNSS fixes and of
+    the used unit updates (2,).
     """
     n = t.shape[0]
     m = fix_row.shape[0]
-    nav = np.full((n, NS), np.nan)
-    max_epochs = (n - start_row) // stride + m + 2
+    nx = P0.shape[0]
+    max_epochs = (n - start_row) // max(stride, 1) + m + 2
     ep_row = np.zeros(max_epochs, dtype=np.int64)
     ep_dT = np.zeros(max_epochs)
-    ep_Pm = np.zeros((max_epochs if keep_predicted else 1, NX, NX))
-    ep_Pp = np.zeros((max_epochs, NX, NX))
-    ep_Phi = np.zeros((max_epochs, NX, NX))
-    ep_dx = np.zeros((max_epochs, NX))
-    innov = np.full((m, 3), np.nan)
-    innov_var = np.full((m, 3), np.nan)
-    status = np.full(m, -1, dtype=np.int64)
+    ep_Pm = np.zeros((max_epochs, nx, nx))
+    ep_Pp = np.zeros((max_epochs, nx, nx))
+    ep_Phi = np.zeros((max_epochs, nx, nx))
+    ep_dx = np.zeros((max_epochs, nx))
+    fix_epoch = np.full(m, -1, dtype=np.int64)
+    fix_z = np.full((m, 3), np.nan)
+    fix_H = np.zeros((m, 3, nx))
+    fix_S = np.full((m, 3, 3), np.nan)
+    fix_d2 = np.full(m, np.nan)
+    fix_status = np.full(m, FIX_UNUSED, dtype=np.int64)
+    unit_epoch = np.zeros(max_epochs, dtype=np.int64)
+    unit_z = np.zeros((max_epochs, 3))
+    unit_H = np.zeros((max_epochs, 3, nx))
+    unit_status = np.zeros(max_epochs, dtype=np.int64)
+    n_unit = 0
+    stop = np.array([n - 1, -1, STOP_END], dtype=np.int64)
+    # innovation log-likelihood of the used GNSS fixes and unit updates: -1/2 sum(log det S + zᵀS⁻¹z + 3 log 2π)
+    loglik = np.zeros(2)
 
     x = x0.copy()
     P = P0.copy()
@@ -212,7 +397,7 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
     ep_row[0] = start_row
     ep_Pm[0] = P
     ep_Pp[0] = P
-    for i in range(NX):
+    for i in range(nx):
         ep_Phi[0, i, i] = 1.0
     n_ep = 1
     dtheta = np.zeros(3)
@@ -220,7 +405,7 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
     dtheta_prev = np.zeros(3)
     dvel_prev = np.zeros(3)
     C = np.empty((3, 3))
-    quat_to_dcm(x[6:10], C)
+    quat_to_dcm(x[X_QUAT:X_QUAT + 4], C)
     C_sum = np.zeros((3, 3))
     f_sum = np.zeros(3)
     count = 0
@@ -230,10 +415,13 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
     while k_fix < m and fix_row[k_fix] <= start_row:
         k_fix += 1
     rejects = 0
+    first_rejected = -1
     t_unit = t[start_row]
-    q_vel, q_att, q_bg, q_ba, inv_tau_g, inv_tau_a = noise[0], noise[1], noise[2], noise[3], noise[4], noise[5]
-    q_unit, inv_tau_unit, q_drift, r_level, r_yaw = noise[6], noise[7], noise[8], noise[9], noise[10]
-    eye = np.eye(NX)
+    r_unit = np.array([noise[R_UNIT_LEVEL], noise[R_UNIT_LEVEL], noise[R_UNIT_YAW]])
+    r_scale = np.array([noise[R_SCALE_H], noise[R_SCALE_H], noise[R_SCALE_V]])
+    F = np.zeros((nx, nx))
+    Phi = np.zeros((nx, nx))
+    Qd = np.zeros((nx, nx))
     for k in range(start_row + 1, n):
         dt = t[k] - t[k - 1]
         increments(gyro[k - 1], gyro[k], accel[k - 1], accel[k], dt, x, dtheta, dvel)
@@ -245,198 +433,235 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
         dtheta_prev[:] = dtheta
         dvel_prev[:] = dvel
         # the unit's nominal attitude errors
-        x[16] += x[17] * dt
-        decay = math.exp(-dt * inv_tau_unit)
-        x[18] *= decay
-        x[19] *= decay
+        x[X_UNIT_YAW] += x[X_UNIT_DRIFT] * dt
+        decay = math.exp(-dt * noise[INV_TAU_UNIT])
+        x[X_UNIT_LEVEL] *= decay
+        x[X_UNIT_LEVEL + 1] *= decay
         C_mid = 0.5 * (C_start + C)
         C_sum += C_mid
         f_sum += C_mid @ (dvel / dt)
         count += 1
         has_fix = k_fix < m and fix_row[k_fix] == k
         if count >= stride or has_fix or k == n - 1:
-            dT = t[k] - t_epoch
-            F = system_matrix(x_epoch, C_sum / count, f_sum / count, inv_tau_g, inv_tau_a, inv_tau_unit)
-            Fd = F * dT
-            Phi = eye + Fd + 0.5 * (Fd @ Fd)
-            Q = _process_noise(q_vel, q_att, q_bg, q_ba, q_unit, q_drift, dT)
-            P = Phi @ P @ Phi.T + Q
+            P = propagate(P, x_epoch, C_sum / count, f_sum / count, noise, t[k] - t_epoch, F, Phi, Qd)
             ep_row[n_ep] = k
-            ep_dT[n_ep] = dT
-            if keep_predicted:
-                ep_Pm[n_ep] = P
+            ep_dT[n_ep] = t[k] - t_epoch
+            ep_Pm[n_ep] = P
             ep_Phi[n_ep] = Phi
-            dx_total = np.zeros(NX)
+            dx_total = np.zeros(nx)
             if unit_aiding and (has_fix or t[k] - t_unit >= 1.0):
                 t_unit = t[k]
-                roll, pitch, yaw = dcm_to_euler(C)
-                z = np.empty(3)
-                z[0] = roll + x[18] - unit_rpy[k, 0]
-                z[1] = pitch + x[19] - unit_rpy[k, 1]
-                z[2] = yaw - x[16] - unit_rpy[k, 2]
-                z[2] = (z[2] + math.pi) % (2.0 * math.pi) - math.pi
-                H = np.zeros((3, NX))
-                # Ĉ = exp(-[φ x]) C, so the estimated Euler angles exceed the true ones by -J φ
-                H[:, 6:9] = -euler_error_jacobian(C)
-                H[0, 15] = 1.0
-                H[1, 16] = 1.0
-                H[2, 17] = -1.0
-                R = np.diag(np.array([r_level, r_level, r_yaw]))
-                S = H @ P @ H.T + R
+                z, H = unit_attitude_innovation(x, C, unit_rpy[k], nx)
+                S = innovation_covariance(P, H, r_unit)
                 S_inv = np.linalg.inv(S)
-                if z @ S_inv @ z <= gate_chi2:
-                    P = _apply_update(x, P, H, z, R, S_inv, C, dx_total)
+                unit_epoch[n_unit] = n_ep
+                unit_z[n_unit] = z + H @ dx_total
+                unit_H[n_unit] = H
+                d2 = z @ S_inv @ z
+                if d2 <= gate_chi2:
+                    unit_status[n_unit] = FIX_USED
+                    loglik[1] -= 0.5 * (math.log(np.linalg.det(S)) + d2 + 3.0 * math.log(2.0 * math.pi))
+                    P = kalman_update(x, P, H, z, S_inv, C, dx_total)
+                else:
+                    unit_status[n_unit] = FIX_REJECTED
+                n_unit += 1
             while k_fix < m and fix_row[k_fix] == k:
-                # predicted antenna position at the fix time, innovation in NED metres
-                M, N = radii(x[0])
-                lever_n = C @ lever
-                lag = fix_lag[k_fix]
-                d_north = (x[0] - z_fix[k_fix, 0]) * (M + x[2]) + lever_n[0] - x[3] * lag
-                d_east = (x[1] - z_fix[k_fix, 1]) * (N + x[2]) * math.cos(x[0]) + lever_n[1] - x[4] * lag
-                d_down = -(x[2] - z_fix[k_fix, 2]) + lever_n[2] - x[5] * lag
-                z = np.array([d_north, d_east, d_down])
-                H = np.zeros((3, NX))
-                for i in range(3):
-                    H[i, i] = 1.0
-                # (C l) x  ->  columns 6..8
-                H[0, 7] = -lever_n[2]
-                H[0, 8] = lever_n[1]
-                H[1, 6] = lever_n[2]
-                H[1, 8] = -lever_n[0]
-                H[2, 6] = -lever_n[1]
-                H[2, 7] = lever_n[0]
-                R = np.diag(r_fix[k_fix])
-                S = H @ P @ H.T + R
+                z, H = gnss_innovation(x, C, z_fix[k_fix], fix_lag[k_fix], nx)
+                r = r_fix[k_fix] * r_scale
+                S = innovation_covariance(P, H, r)
                 S_inv = np.linalg.inv(S)
                 d2 = z @ S_inv @ z
-                for i in range(3):
-                    innov[k_fix, i] = z[i]
-                    innov_var[k_fix, i] = S[i, i]
-                if d2 <= gate_chi2 or rejects >= max_rejects:
-                    status[k_fix] = 1 if d2 <= gate_chi2 else 2
+                fix_epoch[k_fix] = n_ep
+                fix_z[k_fix] = z + H @ dx_total
+                fix_H[k_fix] = H
+                fix_S[k_fix] = S
+                fix_d2[k_fix] = d2
+                if d2 <= gate_chi2:
+                    fix_status[k_fix] = FIX_USED
+                    loglik[0] -= 0.5 * (math.log(np.linalg.det(S)) + d2 + 3.0 * math.log(2.0 * math.pi))
                     rejects = 0
-                    P = _apply_update(x, P, H, z, R, S_inv, C, dx_total)
+                    P = kalman_update(x, P, H, z, S_inv, C, dx_total)
                 else:
-                    status[k_fix] = 0
+                    fix_status[k_fix] = FIX_REJECTED
+                    if rejects == 0:
+                        first_rejected = k_fix
                     rejects += 1
                 k_fix += 1
             P = 0.5 * (P + P.T)
             ep_Pp[n_ep] = P
             ep_dx[n_ep] = dx_total
             n_ep += 1
-            C_sum[:] = 0.0
+            C_sum[:, :] = 0.0
             f_sum[:] = 0.0
             count = 0
             x_epoch[:] = x
             t_epoch = t[k]
-        nav[k] = x
-    return (nav, ep_row[:n_ep], ep_dT[:n_ep], ep_Pm[:n_ep] if keep_predicted else ep_Pm, ep_Pp[:n_ep],
-            ep_Phi[:n_ep], ep_dx[:n_ep], innov, innov_var, status)
+            nav[k] = x
+            if max_rejects > 0 and rejects >= max_rejects:
+                stop[0] = k
+                stop[1] = first_rejected
+                stop[2] = STOP_DIVERGED
+                break
+        else:
+            nav[k] = x
+    return (ep_row[:n_ep], ep_dT[:n_ep], ep_Pm[:n_ep], ep_Pp[:n_ep], ep_Phi[:n_ep], ep_dx[:n_ep], fix_epoch,
+            fix_z, fix_H, fix_S, fix_d2, fix_status, unit_epoch[:n_unit], unit_z[:n_unit], unit_H[:n_unit],
+            unit_status[:n_unit], stop, loglik)
 
 
 @njit(cache=True)
-def rts_backward(ep_dT, ep_Pp, ep_Phi, ep_dx, noise):
-    """RTS smoother over covariance epochs of the closed-loop filter, in place.
+def _block_statistic(w: np.ndarray, cov: np.ndarray, Q: np.ndarray, idx: np.ndarray, out: np.ndarray,
+                     block: int) -> None:
+    """Add ``wᵀQ⁻¹w``, ``tr(Q⁻¹ cov)`` and the dimension of the sub-block ``idx`` to ``out[block]``."""
+    k = idx.shape[0]
+    Qs = np.empty((k, k))
+    cs = np.empty((k, k))
+    ws = np.empty(k)
+    for a in range(k):
+        ws[a] = w[idx[a]]
+        if Q[idx[a], idx[a]] <= 0.0:
+            return
+        for b in range(k):
+            Qs[a, b] = Q[idx[a], idx[b]]
+            cs[a, b] = cov[idx[a], idx[b]]
+    Qi = np.linalg.inv(Qs)
+    out[block, 0] += ws @ Qi @ ws
+    out[block, 1] += np.trace(Qi @ cs)
+    out[block, 2] += k
 
-    ``P⁻_{j+1} = Φ P⁺_j Φ^T + Q`` is recomputed rather than stored, and the smoothed covariance overwrites
-    ``ep_Pp``. Returns per epoch the smoothed error of the post-update nominal (E, NX) and of the pre-update
-    nominal (E, NX); ``ep_Pp`` then holds the smoothed covariances.
+
+@njit(cache=True)
+def _measurement_statistic(e: np.ndarray, cov: np.ndarray, r: np.ndarray, lo: int, hi: int, out: np.ndarray,
+                           block: int) -> None:
+    """Add the normalised residual and posterior-trace terms of measurement components ``lo..hi-1``."""
+    for i in range(lo, hi):
+        out[block, 0] += e[i] * e[i] / r[i]
+        out[block, 1] += cov[i, i] / r[i]
+        out[block, 2] += 1.0
+
+
+@njit(cache=True)
+def rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, noise, fix_epoch, fix_z, fix_H, r_fix, fix_status,
+                 unit_epoch, unit_z, unit_H, unit_status, want_stats):
+    """RTS smoother over the covariance epochs of the closed-loop filter, segment by segment, in place.
+
+    ``seg_start[j]`` marks an epoch where the filter was restarted: no information crosses it. Returns per
+    epoch the smoothed error of the post-update nominal (E, nx) and of the pre-update nominal (E, nx);
+    ``ep_Pp`` then holds the smoothed covariances. With ``want_stats``, also the EM statistics (N_BLOCKS, 3):
+    per noise block the sum of squared normalised smoothed residuals, the sum of the normalised posterior
+    variances (trace terms) and the number of scalar residuals.
     """
     n_ep = ep_Pp.shape[0]
-    err_post = np.zeros((n_ep, NX))
-    err_pre = np.zeros((n_ep, NX))
+    nx = ep_Pp.shape[1]
+    err_post = np.zeros((n_ep, nx))
+    err_pre = np.zeros((n_ep, nx))
+    stats = np.zeros((N_BLOCKS, 3))
     err_pre[n_ep - 1] = ep_dx[n_ep - 1]
+    blocks = [np.array([POS, POS + 1, VEL, VEL + 1]), np.array([POS + 2, VEL + 2]), np.array([ATT, ATT + 1]),
+              np.array([ATT + 2]), np.array([BG, BG + 1, BG + 2]), np.array([BA, BA + 1, BA + 2]),
+              np.array([UNIT_LEVEL, UNIT_LEVEL + 1]), np.array([UNIT_YAW, UNIT_DRIFT])]
+    block_ids = np.array([B_VEL_H, B_VEL_V, B_ATT_H, B_ATT_V, B_BG, B_BA, B_UNIT_LEVEL, B_UNIT_DRIFT])
     for j in range(n_ep - 2, -1, -1):
+        if seg_start[j + 1]:
+            err_post[j] = 0.0
+            err_pre[j] = ep_dx[j]
+            continue
         Phi = ep_Phi[j + 1]
-        Q = _process_noise(noise[0], noise[1], noise[2], noise[3], noise[6], noise[8], ep_dT[j + 1])
         P_plus = ep_Pp[j].copy()
-        P_minus = Phi @ P_plus @ Phi.T + Q
-        # A = P+_j Phi^T (P-_{j+1})^-1, via a solve with the symmetric P-
+        P_minus = ep_Pm[j + 1]
+        # A = P+_j Φᵀ (P-_{j+1})⁻¹, by a solve with the symmetric P-
         A = np.linalg.solve(P_minus, Phi @ P_plus).T
         err_post[j] = A @ err_pre[j + 1]
         err_pre[j] = ep_dx[j] + err_post[j]
-        P_s = P_plus + A @ (ep_Pp[j + 1] - P_minus) @ A.T
-        ep_Pp[j] = 0.5 * (P_s + P_s.T)
-    return err_post, err_pre
+        P_next = ep_Pp[j + 1]
+        P_s = P_plus + A @ (P_next - P_minus) @ A.T
+        P_s = 0.5 * (P_s + P_s.T)
+        if want_stats:
+            # process noise between epochs j and j+1: w = ε⁻_{j+1} - Φ ε⁺_j, its mean and posterior covariance
+            w = err_pre[j + 1] - Phi @ err_post[j]
+            Qd = P_minus - Phi @ P_plus @ Phi.T
+            L = P_next @ A.T  # Cov(ε⁻_{j+1}, ε⁺_j | all data)
+            PhiLt = Phi @ L.T
+            cov_w = P_next + Phi @ P_s @ Phi.T - PhiLt - PhiLt.T
+            for b in range(len(blocks)):
+                _block_statistic(w, cov_w, Qd, blocks[b], stats, block_ids[b])
+        ep_Pp[j] = P_s
+    if want_stats:
+        r_scale = np.array([noise[R_SCALE_H], noise[R_SCALE_H], noise[R_SCALE_V]])
+        for k in range(fix_epoch.shape[0]):
+            if fix_status[k] != FIX_USED:
+                continue
+            j = fix_epoch[k]
+            H = fix_H[k]
+            e = fix_z[k] - H @ err_pre[j]
+            cov = H @ ep_Pp[j] @ H.T
+            r = r_fix[k] * r_scale
+            _measurement_statistic(e, cov, r, 0, 2, stats, B_GNSS_H)
+            _measurement_statistic(e, cov, r, 2, 3, stats, B_GNSS_V)
+        r_unit = np.array([noise[R_UNIT_LEVEL], noise[R_UNIT_LEVEL], noise[R_UNIT_YAW]])
+        for k in range(unit_epoch.shape[0]):
+            if unit_status[k] != FIX_USED:
+                continue
+            j = unit_epoch[k]
+            H = unit_H[k]
+            e = unit_z[k] - H @ err_pre[j]
+            cov = H @ ep_Pp[j] @ H.T
+            _measurement_statistic(e, cov, r_unit, 0, 2, stats, B_UNIT_R_LEVEL)
+            _measurement_statistic(e, cov, r_unit, 2, 3, stats, B_UNIT_R_YAW)
+    return err_post, err_pre, stats
 
 
 @njit(cache=True)
-def apply_row_corrections(t, nav, ep_row, err_post, err_pre, P_post, P_pre):
-    """Correct every row between covariance epochs by the linearly interpolated error; per-row covariance.
+def finish_rows(t, nav, ep_row, err_post, err_pre, P_post, P_pre):
+    """Correct every row between covariance epochs by the linearly interpolated error; per-row outputs.
 
     At epoch j the row carries ``err_post[j]`` and ``P_post[j]``; just before epoch j+1 the error tends to
     ``err_pre[j+1]`` and the covariance to ``P_pre[j+1]``. For the smoother pass its smoothed errors and
-    ``P_post = P_pre = P_s``; for the forward filter zero errors, ``P_post = P+`` and ``P_pre = P-``.
-    Returns the states (N, 20), corrected in place, position and velocity variances (N, 3) and
-    attitude-error covariances (N, 3, 3).
+    ``P_post = P_pre = P_s``; for the forward filter zero errors, ``P_post = P+`` and ``P_pre = P-``. Epochs on
+    the same row (a restart) cover no rows but the last. ``nav`` (N, NS) is corrected in place.
+
+    Returns: valid rows (N,), position and velocity variances (N, 3) [m^2, m^2/s^2], attitude-error
+    covariances (N, 3, 3) [rad^2], ZYX roll, pitch, yaw [rad] (N, 3) and their 1-sigma (N, 3), and the
+    1-sigma of every error state at every epoch (E, nx).
     """
     n = nav.shape[0]
-    out = nav  # corrected in place
+    nx = P_post.shape[1]
     pos_var = np.full((n, 3), np.nan)
     vel_var = np.full((n, 3), np.nan)
     att_cov = np.full((n, 3, 3), np.nan)
     n_ep = ep_row.shape[0]
-    e = np.empty(NX)
+    e = np.empty(nx)
     for j in range(n_ep):
         r0 = ep_row[j]
         r1 = ep_row[j + 1] if j + 1 < n_ep else r0 + 1
         for r in range(r0, r1):
             w = 0.0 if r == r0 else (t[r] - t[r0]) / (t[r1] - t[r0])
             jn = j + 1 if r != r0 else j
-            # interpolate only what is used: the error, position/velocity variances, attitude covariance
-            for i in range(NX):
+            for i in range(nx):
                 e[i] = err_post[j, i] if r == r0 else (1.0 - w) * err_post[j, i] + w * err_pre[jn, i]
-            correct_state(out[r], e)
+            correct_state(nav[r], e)
             for i in range(3):
-                pos_var[r, i] = (1.0 - w) * P_post[j, i, i] + w * P_pre[jn, i, i]
-                vel_var[r, i] = (1.0 - w) * P_post[j, 3 + i, 3 + i] + w * P_pre[jn, 3 + i, 3 + i]
+                pos_var[r, POS + i] = (1.0 - w) * P_post[j, POS + i, POS + i] + w * P_pre[jn, POS + i, POS + i]
+                vel_var[r, i] = (1.0 - w) * P_post[j, VEL + i, VEL + i] + w * P_pre[jn, VEL + i, VEL + i]
                 for c in range(3):
-                    att_cov[r, i, c] = (1.0 - w) * P_post[j, 6 + i, 6 + c] + w * P_pre[jn, 6 + i, 6 + c]
-    return out, pos_var, vel_var, att_cov
-
-
-@njit(cache=True)
-def attitude_outputs(states: np.ndarray, att_cov: np.ndarray, valid: np.ndarray):
-    """Per row: ZYX roll, pitch, yaw [rad] of the body and their 1-sigma from the NED tilt covariance."""
-    n = states.shape[0]
+                    att_cov[r, i, c] = (1.0 - w) * P_post[j, ATT + i, ATT + c] + w * P_pre[jn, ATT + i, ATT + c]
+    valid = np.zeros(n, dtype=np.bool_)
     angles = np.full((n, 3), np.nan)
     sigma = np.full((n, 3), np.nan)
     C = np.empty((3, 3))
     for r in range(n):
+        valid[r] = not math.isnan(nav[r, X_LAT]) and not math.isnan(pos_var[r, 0])
         if not valid[r]:
             continue
-        quat_to_dcm(states[r, 6:10], C)
+        quat_to_dcm(nav[r, X_QUAT:X_QUAT + 4], C)
         roll, pitch, yaw = dcm_to_euler(C)
         angles[r, 0], angles[r, 1], angles[r, 2] = roll, pitch, yaw
         J = euler_error_jacobian(C)
         S = J @ att_cov[r] @ J.T
         for i in range(3):
             sigma[r, i] = math.sqrt(max(S[i, i], 0.0))
-    return angles, sigma
-
-
-@njit(cache=True)
-def run_ins(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fix, lever, noise, stride, gate_chi2,
-            max_rejects, unit_rpy, unit_aiding, smooth):
-    """The whole compiled path in one call (one cache load per process): filter, smoother if ``smooth``,
-    per-row corrections and attitude outputs. Returns states (N, 20), position and velocity variances,
-    attitude-error covariances, angles and their sigmas, epoch rows and sigmas, innovations and status."""
-    nav, ep_row, ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, innov, innov_var, status = ekf_forward(
-        t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fix, lever, noise, stride, gate_chi2,
-        max_rejects, unit_rpy, unit_aiding, not smooth)
-    if smooth:
-        err_post, err_pre = rts_backward(ep_dT, ep_Pp, ep_Phi, ep_dx, noise)
-        states, pos_var, vel_var, att_cov = apply_row_corrections(t, nav, ep_row, err_post, err_pre, ep_Pp, ep_Pp)
-    else:
-        zeros = np.zeros((ep_row.shape[0], NX))
-        states, pos_var, vel_var, att_cov = apply_row_corrections(t, nav, ep_row, zeros, zeros, ep_Pp, ep_Pm)
-    valid = np.zeros(t.shape[0], dtype=np.bool_)
-    for r in range(t.shape[0]):
-        valid[r] = not math.isnan(states[r, 0])
-    angles, att_sigma = attitude_outputs(states, att_cov, valid)
-    epoch_sigma = np.empty((ep_row.shape[0], NX))
-    for j in range(ep_row.shape[0]):
-        for i in range(NX):
-            epoch_sigma[j, i] = math.sqrt(max(ep_Pp[j, i, i], 0.0))
-    return (states, pos_var, vel_var, att_cov, valid, angles, att_sigma, ep_row, epoch_sigma, innov, innov_var,
-            status)
+    epoch_sigma = np.empty((n_ep, nx))
+    for j in range(n_ep):
+        for i in range(nx):
+            epoch_sigma[j, i] = math.sqrt(max(P_post[j, i, i], 0.0))
+    return valid, pos_var, vel_var, att_cov, angles, sigma, epoch_sigma

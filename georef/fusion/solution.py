@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -11,14 +12,17 @@ from georef.frames import C_e_n, C_n_e
 
 @dataclass
 class GnssUse:
-    """How each GNSS fix was used: time [s], status (1 used, 0 rejected, 2 forced after rejections,
-    -1 outside the IMU span), innovation [m] and innovation variance [m^2] per ECEF axis, file line."""
+    """How each GNSS fix was used: time [s], status (1 used, 0 rejected, -1 not processed: outside the IMU span
+    or before the filter's start), innovation [m] and innovation variance [m^2] per NED axis (north, east,
+    down), file line, and the normalised innovation squared (chi-square with 3 degrees of freedom when the
+    model is right) with the full innovation covariance, NaN where not processed."""
 
     time: np.ndarray
     status: np.ndarray
     innovation: np.ndarray
     innovation_var: np.ndarray
     line: np.ndarray
+    nis: np.ndarray | None = None
 
     @property
     def rejected_lines(self) -> list[int]:
@@ -26,7 +30,10 @@ class GnssUse:
 
     @property
     def normalised_innovation_sq(self) -> np.ndarray:
-        """Per-fix chi-square statistic of the 3-D innovation (diagonal innovation covariance)."""
+        """Per-fix chi-square statistic of the 3-D innovation: the filter's own (full covariance) when it gave one,
+        else from the diagonal innovation variances."""
+        if self.nis is not None:
+            return self.nis
         return np.sum(self.innovation**2 / self.innovation_var, axis=1)
 
 
@@ -57,6 +64,8 @@ class NavSolution:
     gnss: GnssUse
     info: dict = field(default_factory=dict)
     att_cov_n: np.ndarray | None = None
+    #: how a full-state solution was reached (georef.fusion.ins.InsDiagnostics); None for other methods
+    diagnostics: Any = None
 
     @property
     def v_n(self) -> np.ndarray:

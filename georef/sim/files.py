@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 
 from georef.config import ProcessingConfig, config_to_toml
+from georef.frames import wrap_360
 from georef.io.atomic import atomic_write
 from georef.sim.flight import SimulatedFlight
 
@@ -28,11 +29,12 @@ def _rounded(pos: pd.DataFrame) -> pd.DataFrame:
 def processing_config_for(flight: SimulatedFlight, crs: str | None = None) -> ProcessingConfig:
     """The processing configuration that matches the simulated installation."""
     cfg = flight.config
+    unit = {} if cfg.unit is None else {
+        "unit_level_sigma": cfg.unit.level_error_deg, "unit_level_time": cfg.unit.level_error_corr_s,
+        "unit_angle_noise": cfg.unit.angle_noise_deg, "unit_drift_change": 0.01}
     return ProcessingConfig(lever_arm_gnss=cfg.lever_arm_gnss_m, lever_arm_camera=cfg.lever_arm_camera_m,
                             boresight=cfg.boresight_deg, gnss_sigma=cfg.gnss.sigma_neu_m,
-                            gnss_rate_hz=cfg.gnss.rate_hz, crs=crs, imu_preset=cfg.imu_preset,
-                            unit_level_sigma=cfg.unit.level_error_deg, unit_level_time=cfg.unit.level_error_corr_s,
-                            unit_angle_noise=cfg.unit.angle_noise_deg, unit_drift_change=0.01)
+                            gnss_rate_hz=cfg.gnss.rate_hz, crs=crs, imu_preset=cfg.imu_preset, **unit)
 
 
 def write_flight(flight: SimulatedFlight, folder: Path | str, crs: str | None = None) -> dict[str, Path]:
@@ -56,7 +58,14 @@ def write_flight(flight: SimulatedFlight, folder: Path | str, crs: str | None = 
 
 
 def write_generic(flight: SimulatedFlight, folder: Path | str) -> dict[str, Path]:
-    """Write the flight as the generic inputs: ``imu.csv``, ``gnss.csv`` and ``truth_traj.csv`` (IMU truth)."""
+    """Write the flight as the generic inputs: ``imu.csv``, ``gnss.csv`` and ``truth_traj.csv`` (IMU truth).
+
+    ``imu.csv``: ``time`` [s], ``gyro_x..z`` [rad/s], ``acc_x..z`` [m/s^2] (body x forward, y right, z down);
+    when the flight has them (``SimConfig.magnetometer`` / ``SimConfig.autopilot``), also ``mag_x, mag_y,
+    mag_z`` [uT, body axes] and the autopilot's ``roll, pitch, yaw`` [deg, ZYX to NED, yaw in [0, 360) from
+    true north]. ``gnss.csv``: ``time, lat, lon, height, sigma_n, sigma_e, sigma_u`` (deg, m) of the antenna
+    at every fix (any GNSS rate). ``truth_traj.csv``: the IMU's true position, NED velocity and attitude.
+    """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     pos = flight.pos
@@ -65,6 +74,11 @@ def write_generic(flight: SimulatedFlight, folder: Path | str) -> dict[str, Path
                         "gyro_x": np.radians(pos["OMGS_X"]), "gyro_y": np.radians(pos["OMGS_Y"]),
                         "gyro_z": np.radians(pos["OMGS_Z"]),
                         "acc_x": pos["ACCS_X"], "acc_y": pos["ACCS_Y"], "acc_z": pos["ACCS_Z"]})
+    if flight.mag is not None:
+        imu["mag_x"], imu["mag_y"], imu["mag_z"] = flight.mag[:, 0], flight.mag[:, 1], flight.mag[:, 2]
+    if flight.autopilot_rpy is not None:
+        rpy = np.degrees(flight.autopilot_rpy)
+        imu["roll"], imu["pitch"], imu["yaw"] = rpy[:, 0], rpy[:, 1], wrap_360(rpy[:, 2])
     fixes = flight.gnss_fixes
     sigma = flight.config.gnss.sigma_neu_m
     gnss = pd.DataFrame({"time": fixes["time"], "lat": fixes["lat"], "lon": fixes["lon"], "height": fixes["height"],

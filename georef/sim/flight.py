@@ -2,6 +2,13 @@
 
 ``simulate(SimConfig(...))`` returns a :class:`SimulatedFlight`; :func:`georef.sim.files.write_flight`
 writes it as ``POS.txt``, ``Kamera.txt``, ``truth.csv`` and a ``flight.toml`` that processes it.
+
+The vehicle is chosen by the type of ``SimConfig.plan``: :class:`~georef.sim.trajectory.FlightPlan`
+(helicopter survey, the default), :class:`~georef.sim.multicopter.MulticopterPlan` or
+:class:`~georef.sim.car.CarPlan`; :meth:`SimConfig.for_vehicle` gives each vehicle's typical installation.
+The default configuration draws its random numbers in the same order as it always has (the bundled flight in
+``data/`` and the tests depend on it); every optional output (magnetometer, autopilot attitude) draws from
+its own random stream, so switching it on changes nothing else.
 """
 
 from __future__ import annotations
@@ -24,8 +31,27 @@ from georef.frames import (
 )
 from georef.frames.mounting import camera_attitude, lever_arm_ecef
 from georef.imu_errors import imu_preset
-from georef.sim.sensors import GnssModel, UnitModel, VibrationModel, corrupt_imu, gauss_markov
+from georef.sim.car import CarPlan, drive
+from georef.sim.multicopter import MulticopterPlan, fly_multicopter
+from georef.sim.sensors import (
+    AutopilotModel,
+    GnssModel,
+    MagnetometerModel,
+    UnitModel,
+    VibrationModel,
+    autopilot_attitude,
+    corrupt_imu,
+    gauss_markov,
+    magnetometer,
+)
 from georef.sim.trajectory import FlightPlan, Trajectory, fly
+
+#: Vehicle name -> plan type (the plan's type selects the vehicle in :func:`simulate`).
+VEHICLES: dict[str, type] = {"helicopter": FlightPlan, "multicopter": MulticopterPlan, "car": CarPlan}
+#: POS columns that only a POS unit (``SimConfig.unit``) writes.
+UNIT_COLUMNS = ["IACC_X", "IACC_Y", "IACC_Z", "ROLL", "PITCH", "YAW"]
+#: Sub-stream numbers of the optional outputs' random generators (seeded with ``(seed, stream)``).
+_MAG_STREAM, _AUTOPILOT_STREAM = 101, 102
 
 POS_HEADER = [
     "CNT[HEX]", "ACCS_X", "ACCS_Y", "ACCS_Z", "IACC_X", "IACC_Y", "IACC_Z", "OMGS_X", "OMGS_Y", "OMGS_Z",
@@ -36,12 +62,21 @@ POS_HEADER = [
 
 @dataclass
 class SimConfig:
-    """Everything that defines a simulated flight. Units: s, m, deg, Hz."""
+    """Everything that defines a simulated flight. Units: s, m, deg, Hz unless a name says otherwise.
 
-    plan: FlightPlan = field(default_factory=FlightPlan)
+    * ``plan``: the vehicle and its path (``FlightPlan``, ``MulticopterPlan`` or ``CarPlan``);
+    * ``imu_preset``: a name of :data:`georef.imu_errors.IMU_PRESETS`; ``gyro_bias_rad_s`` [rad/s] and
+      ``accel_bias_mps2`` [m/s^2] (body x, y, z) force the turn-on biases (None: drawn from the preset);
+    * ``vibration``: :class:`VibrationModel` (kind none/rotor/white/narrowband) or None;
+    * ``unit``: the POS unit's own attitude and IACC outputs, or None for a vehicle without one (POS.txt
+      then has no ROLL/PITCH/YAW/IACC columns);
+    * ``magnetometer``, ``autopilot``: optional extra outputs for the generic files (None: off).
+    """
+
+    plan: FlightPlan | MulticopterPlan | CarPlan = field(default_factory=FlightPlan)
     imu_preset: str = "mems-ivru"
     vibration: VibrationModel | None = field(default_factory=VibrationModel)
-    unit: UnitModel = field(default_factory=UnitModel)
+    unit: UnitModel | None = field(default_factory=UnitModel)
     gnss: GnssModel = field(default_factory=GnssModel)
     pos_rate_hz: float = 50.0
     camera_rate_hz: float = 3.0
@@ -53,6 +88,56 @@ class SimConfig:
     boresight_deg: tuple[float, float, float] = (0.35, -0.6, 1.2)
     trig_quirk_seconds: list[int] = field(default_factory=lambda: [37, 121])
     seed: int = 1
+    gyro_bias_rad_s: tuple[float, float, float] | None = None
+    accel_bias_mps2: tuple[float, float, float] | None = None
+    magnetometer: MagnetometerModel | None = None
+    autopilot: AutopilotModel | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.plan, tuple(VEHICLES.values())):
+            raise TypeError(f"plan must be one of {', '.join(t.__name__ for t in VEHICLES.values())}, "
+                            f"got {type(self.plan).__name__}")
+        for name in ("gyro_bias_rad_s", "accel_bias_mps2"):
+            value = getattr(self, name)
+            if value is not None and np.shape(value) != (3,):
+                raise ValueError(f"{name} needs three numbers (body x, y, z), got {value!r}")
+
+    @property
+    def vehicle(self) -> str:
+        """``helicopter``, ``multicopter`` or ``car``, from the plan's type."""
+        return next(name for name, kind in VEHICLES.items() if isinstance(self.plan, kind))
+
+    @classmethod
+    def for_vehicle(cls, vehicle: str, duration_s: float | None = None, seed: int = 1,
+                    **changes: object) -> SimConfig:
+        """A configuration with ``vehicle``'s plan (``duration_s`` [s], plan seed = ``seed``) and installation.
+
+        * ``helicopter``: exactly :class:`SimConfig`'s defaults (survey plan, MEMS unit with rotor vibration);
+        * ``multicopter``: :class:`MulticopterPlan`, no POS unit, ``mems-consumer`` IMU, narrowband
+          vibration (20 +- 2 Hz), a drone's lever arms, no logger quirk;
+        * ``car``: :class:`CarPlan`, no POS unit, ``mems-consumer`` IMU, white vibration, roof antenna and
+          camera, no logger quirk.
+
+        ``changes`` override any field of the result.
+        """
+        if vehicle not in VEHICLES:
+            raise ValueError(f"vehicle must be one of {', '.join(VEHICLES)}, got {vehicle!r}")
+        plan_args: dict[str, object] = {"seed": seed}
+        if duration_s is not None:
+            plan_args["duration_s"] = duration_s
+        typical: dict[str, dict[str, object]] = {
+            "helicopter": {},
+            "multicopter": {"unit": None, "imu_preset": "mems-consumer", "trig_quirk_seconds": [],
+                            "vibration": VibrationModel.of_kind("narrowband"),
+                            "lever_arm_gnss_m": (0.02, 0.0, -0.12), "lever_arm_camera_m": (0.08, 0.0, 0.10),
+                            "boresight_deg": (0.2, -0.3, 0.5)},
+            "car": {"unit": None, "imu_preset": "mems-consumer", "trig_quirk_seconds": [],
+                    "vibration": VibrationModel.of_kind("white"),
+                    "lever_arm_gnss_m": (-0.6, 0.0, -1.1), "lever_arm_camera_m": (0.9, 0.0, -1.0),
+                    "boresight_deg": (0.3, -0.4, 0.8)},
+        }
+        settings = {"plan": VEHICLES[vehicle](**plan_args), "seed": seed, **typical[vehicle], **changes}
+        return cls(**settings)  # type: ignore[arg-type]
 
 
 @dataclass
@@ -67,6 +152,8 @@ class SimulatedFlight:
     gnss_fixes: pd.DataFrame         # time, measured antenna lat/lon/height, is_outlier
     gyro_bias: np.ndarray
     accel_bias: np.ndarray
+    mag: np.ndarray | None = None             # (N, 3) magnetometer at POS rows [uT], body axes
+    autopilot_rpy: np.ndarray | None = None   # (N, 3) autopilot roll, pitch, yaw at POS rows [rad]
 
 
 def _fine_rate(pos_rate_hz: float) -> tuple[int, int]:
@@ -87,6 +174,7 @@ def _unit_outputs(cfg: SimConfig, traj: Trajectory, accel_error_b: np.ndarray,
                   rng: np.random.Generator) -> dict[str, np.ndarray]:
     """ROLL/PITCH/YAW [deg] and IACC [m/s^2] as the unit would log them (unknown yaw origin, drift)."""
     unit = cfg.unit
+    assert unit is not None
     n = len(traj.time)
     dt = float(np.median(np.diff(traj.time)))
     t_rel = traj.time - traj.time[0]
@@ -109,6 +197,8 @@ def _gnss(cfg: SimConfig, fine: Trajectory, fine_rate: int, row_time: np.ndarray
           rng: np.random.Generator) -> tuple[pd.DataFrame, np.ndarray]:
     """Measured fixes on whole seconds and, for each POS row, the index of the fix it holds (-1: none)."""
     gnss = cfg.gnss
+    if gnss.rate_hz <= 0:
+        raise ValueError(f"GNSS rate must be positive Hz, got {gnss.rate_hz}")
     period = 1.0 / gnss.rate_hz
     first = np.ceil(row_time[0] + 2.0)
     fix_time = np.arange(first, row_time[-1] - 0.5, period)
@@ -133,13 +223,15 @@ def _gnss(cfg: SimConfig, fine: Trajectory, fine_rate: int, row_time: np.ndarray
     speed = np.hypot(fine.v_n[idx, 0], fine.v_n[idx, 1]) + 0.05 * rng.standard_normal(len(idx))
     fixes = pd.DataFrame({"time": fix_time, "lat": np.degrees(lat), "lon": np.degrees(lon), "height": h,
                           "speed": speed, "is_outlier": outlier})
-    appear = fix_time + rng.uniform(*gnss.latency_s, len(fix_time))
+    latency = (min(gnss.latency_s[0], 0.5 * period), min(gnss.latency_s[1], 0.9 * period))
+    appear = fix_time + rng.uniform(*latency, len(fix_time))
     held = np.searchsorted(appear, row_time, side="right") - 1
     return fixes, held
 
 
 def _frame_truth(cfg: SimConfig, fine: Trajectory, fine_time: np.ndarray, frame_time: np.ndarray,
-                 yaw_offset_of: np.ndarray) -> pd.DataFrame:
+                 yaw_offset_of: np.ndarray | None) -> pd.DataFrame:
+    """Per-frame truth: camera position and attitude, body attitude, track [deg, m]; the unit's yaw origin."""
     r_e, v_e = _ecef_track(fine)
     r_imu = CubicHermiteSpline(fine_time, r_e, v_e, axis=0)(frame_time)
     v_n_frame = np.stack([np.interp(frame_time, fine_time, fine.v_n[:, k]) for k in range(3)], -1)
@@ -152,20 +244,22 @@ def _frame_truth(cfg: SimConfig, fine: Trajectory, fine_time: np.ndarray, frame_
     roll, pitch, yaw = dcm_to_euler(C_c_n)
     body_roll, body_pitch, body_yaw = dcm_to_euler(C_b_n)
     track = np.degrees(np.arctan2(v_n_frame[:, 1], v_n_frame[:, 0]))
-    return pd.DataFrame({
+    table = pd.DataFrame({
         "time": frame_time, "lat": np.degrees(lat), "lon": np.degrees(lon), "height": h,
         "roll": np.degrees(roll), "pitch": np.degrees(pitch), "yaw": wrap_360(np.degrees(yaw)),
         "body_roll": np.degrees(body_roll), "body_pitch": np.degrees(body_pitch),
         "body_yaw": wrap_360(np.degrees(body_yaw)), "track": wrap_360(track),
-        "unit_yaw_offset": np.degrees(yaw_offset_of),
     })
+    if yaw_offset_of is not None:  # only a POS unit has a yaw origin
+        table["unit_yaw_offset"] = np.degrees(yaw_offset_of)
+    return table
 
 
 def simulate(cfg: SimConfig) -> SimulatedFlight:
     """Simulate a flight: truth, IMU, unit outputs, GNSS, exposures and the POS table (vectorised)."""
     rng = np.random.default_rng(cfg.seed)
     fine_rate, oversample = _fine_rate(cfg.pos_rate_hz)
-    fine = fly(cfg.plan, float(fine_rate))
+    fine = vehicle_trajectory(cfg.plan, float(fine_rate))
     fine_time = cfg.start_utc_s + np.arange(len(fine.time)) / fine_rate
     first = int(round(cfg.first_row_offset_s * fine_rate))
     rows = np.arange(first, len(fine.time), oversample)
@@ -175,8 +269,9 @@ def simulate(cfg: SimConfig) -> SimulatedFlight:
 
     model = imu_preset(cfg.imu_preset)
     gyro, accel, gyro_bias, accel_bias = corrupt_imu(nav.omega_ib_b, nav.f_ib_b, row_time, model,
-                                                     cfg.vibration, rng)
-    unit = _unit_outputs(cfg, nav, accel - nav.f_ib_b, rng)
+                                                     cfg.vibration, rng, gyro_turn_on=cfg.gyro_bias_rad_s,
+                                                     accel_turn_on=cfg.accel_bias_mps2)
+    unit = _unit_outputs(cfg, nav, accel - nav.f_ib_b, rng) if cfg.unit is not None else None
     fixes, held = _gnss(cfg, fine, fine_rate, row_time, rng)
 
     whole_s = cfg.start_utc_s + rows // fine_rate
@@ -191,14 +286,15 @@ def simulate(cfg: SimConfig) -> SimulatedFlight:
     hold = np.where(has_fix, held, 0)
     earth_b = np.einsum("nji,nj->ni", nav.C_b_n, earth_rate_n(nav.lat))
     n = len(rows)
+    unit_columns = {"IACC_X": unit["IACC"][:, 0], "IACC_Y": unit["IACC"][:, 1], "IACC_Z": unit["IACC"][:, 2],
+                    "ROLL": unit["ROLL"], "PITCH": unit["PITCH"], "YAW": unit["YAW"]} if unit is not None else {}
     pos = pd.DataFrame({
         "CNT[HEX]": np.char.mod("%X", 0xA4 + np.arange(n)),
         "ACCS_X": accel[:, 0], "ACCS_Y": accel[:, 1], "ACCS_Z": accel[:, 2],
-        "IACC_X": unit["IACC"][:, 0], "IACC_Y": unit["IACC"][:, 1], "IACC_Z": unit["IACC"][:, 2],
+        **unit_columns,  # placed by the column selection below
         "OMGS_X": np.degrees(gyro[:, 0]), "OMGS_Y": np.degrees(gyro[:, 1]), "OMGS_Z": np.degrees(gyro[:, 2]),
         "IOMG_X": np.degrees(gyro[:, 0] - earth_b[:, 0]), "IOMG_Y": np.degrees(gyro[:, 1] - earth_b[:, 1]),
         "IOMG_Z": np.degrees(gyro[:, 2] - earth_b[:, 2]),
-        "ROLL": unit["ROLL"], "PITCH": unit["PITCH"], "YAW": unit["YAW"],
         "VELX": np.zeros(n), "ODO_TICKS": np.zeros(n, int), "MAGNMTR": np.zeros(n, int),
         "TRIG_TIME": trig, "SAMPL_TIME": micro,
         "IMU_TEMP": 35.0 + 0.002 * (row_time - row_time[0]), "SENS_TEMP": 33.0 + 0.002 * (row_time - row_time[0]),
@@ -207,15 +303,31 @@ def simulate(cfg: SimConfig) -> SimulatedFlight:
         "ALTITUDE": np.where(has_fix, fixes["height"].to_numpy()[hold], 0.0),
         "VELOCITY": np.where(has_fix, fixes["speed"].to_numpy()[hold], 0.0),
         "STATUS[HEX]": np.where(has_fix, "49", "0"),
-    })[POS_HEADER]
+    })[[name for name in POS_HEADER if unit is not None or name not in UNIT_COLUMNS]]
 
     t0 = fixes["time"].iloc[0] + 3.0 if len(fixes) else row_time[0] + 3.0
     nominal = np.arange(t0, row_time[-1] - 3.0, 1.0 / cfg.camera_rate_hz)
     jitter = rng.uniform(-cfg.camera_jitter_ms, cfg.camera_jitter_ms, len(nominal)) / 1000.0
     frame_time = np.round((nominal + jitter) * 1000.0) / 1000.0
     exposures = pd.DataFrame({"frame": np.arange(1, len(frame_time) + 1), "time": frame_time})
-    offset_at_frame = np.interp(frame_time, row_time, unit["yaw_offset"])
+    offset_at_frame = np.interp(frame_time, row_time, unit["yaw_offset"]) if unit is not None else None
     truth = _frame_truth(cfg, fine, fine_time, frame_time, offset_at_frame)
     truth.insert(0, "frame", exposures["frame"].to_numpy())
+    mag = autopilot = None
+    if cfg.magnetometer is not None:
+        mag = magnetometer(nav.C_b_n, cfg.magnetometer, np.random.default_rng((cfg.seed, _MAG_STREAM)))
+    if cfg.autopilot is not None:
+        autopilot = autopilot_attitude(row_time, nav.roll, nav.pitch, nav.yaw, cfg.autopilot,
+                                       np.random.default_rng((cfg.seed, _AUTOPILOT_STREAM)))
     return SimulatedFlight(config=cfg, pos=pos, exposures=exposures, truth_frames=truth, truth_nav=nav,
-                           gnss_fixes=fixes, gyro_bias=gyro_bias, accel_bias=accel_bias)
+                           gnss_fixes=fixes, gyro_bias=gyro_bias, accel_bias=accel_bias, mag=mag,
+                           autopilot_rpy=autopilot)
+
+
+def vehicle_trajectory(plan: FlightPlan | MulticopterPlan | CarPlan, fine_rate_hz: float) -> Trajectory:
+    """The truth and ideal IMU of the vehicle the plan's type names, on a ``fine_rate_hz`` [Hz] grid."""
+    if isinstance(plan, MulticopterPlan):
+        return fly_multicopter(plan, fine_rate_hz)
+    if isinstance(plan, CarPlan):
+        return drive(plan, fine_rate_hz)
+    return fly(plan, fine_rate_hz)

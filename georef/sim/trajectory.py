@@ -120,9 +120,14 @@ def _turbulence(t: np.ndarray, amplitude_rad: float, rng: np.random.Generator) -
     return out
 
 
-def _integrate_position(plan: FlightPlan, t: np.ndarray, v_n: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Integrate NED velocity into geodetic position; radii of curvature refined by fixed point."""
-    lat0, lon0, h0 = np.radians(plan.start_lat_deg), np.radians(plan.start_lon_deg), plan.start_height_m
+def integrate_position(t: np.ndarray, v_n: np.ndarray, lat0: float, lon0: float,
+                       h0: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Geodetic position (lat, lon [rad], height [m]) from NED velocity [m/s] on times ``t`` [s].
+
+    ``lat' = v_N/(M+h)``, ``lon' = v_E/((N+h) cos lat)``, ``h' = -v_D`` integrated by the trapezoid rule from
+    ``(lat0, lon0 [rad], h0 [m])`` at ``t[0]``; the radii of curvature (``georef.frames``) are refined by
+    fixed-point iteration. Second-order accurate in the grid step.
+    """
     height = h0 - cumulative_trapezoid(v_n[:, 2], t, initial=0.0)
     lat = np.full_like(t, lat0)
     for _ in range(3):
@@ -131,6 +136,12 @@ def _integrate_position(plan: FlightPlan, t: np.ndarray, v_n: np.ndarray) -> tup
     M, N = radii_of_curvature(lat)
     lon = lon0 + cumulative_trapezoid(v_n[:, 1] / ((N + height) * np.cos(lat)), t, initial=0.0)
     return lat, lon, height
+
+
+def _integrate_position(plan: FlightPlan, t: np.ndarray, v_n: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Integrate NED velocity into geodetic position from the plan's start point."""
+    return integrate_position(t, v_n, np.radians(plan.start_lat_deg), np.radians(plan.start_lon_deg),
+                              plan.start_height_m)
 
 
 def _body_rate_nb(t: np.ndarray, C_b_n: np.ndarray) -> np.ndarray:
@@ -143,8 +154,50 @@ def _body_rate_nb(t: np.ndarray, C_b_n: np.ndarray) -> np.ndarray:
     return omega
 
 
+def specific_force_n(lat: np.ndarray, height: np.ndarray, v_n: np.ndarray, a_n: np.ndarray) -> np.ndarray:
+    """Specific force in NED [m/s^2], (N, 3), that moves a body along the given kinematics.
+
+    ``f_n = dv_n/dt + (2 omega_ie_n + omega_en_n) x v_n - [0, 0, g(lat, h)]`` with Earth rate, transport rate
+    and normal gravity of ``georef.frames``. ``lat`` [rad], ``height`` [m], ``v_n`` NED velocity [m/s],
+    ``a_n = dv_n/dt`` [m/s^2] (the derivative of the NED components, as the strapdown velocity equation uses).
+    """
+    g = normal_gravity(lat, height)
+    omega_ie_n = earth_rate_n(lat)
+    omega_en_n = transport_rate_n(lat, height, v_n)
+    gravity_n = np.stack([np.zeros_like(g), np.zeros_like(g), g], axis=-1)
+    return a_n + np.cross(2.0 * omega_ie_n + omega_en_n, v_n) - gravity_n
+
+
+def imu_from_kinematics(t: np.ndarray, lat: np.ndarray, lon: np.ndarray, height: np.ndarray, v_n: np.ndarray,
+                        a_n: np.ndarray, roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> Trajectory:
+    """Any vehicle's truth -> the exactly consistent ideal IMU under georef's Earth model.
+
+    Inputs on a fine time grid ``t`` [s] (>= 400 Hz recommended; rates come from central differences):
+    geodetic position ``lat, lon`` [rad], ellipsoidal ``height`` [m], NED velocity ``v_n`` [m/s] (N, 3) and its
+    time derivative ``a_n`` [m/s^2] (N, 3), ZYX Euler angles ``roll, pitch, yaw`` [rad] of body (x forward,
+    y right, z down) to NED. Position must be the integral of ``v_n`` (see :func:`integrate_position`).
+
+    Outputs, in the returned :class:`Trajectory`:
+
+    * ``omega_ib_b = omega_nb_b + C_n_b (omega_ie_n + omega_en_n)`` [rad/s], ``omega_nb_b`` by central
+      differences on SO(3);
+    * ``f_ib_b = C_n_b f_n`` [m/s^2] with ``f_n`` of :func:`specific_force_n`;
+    * Euler angles re-extracted from ``C_b_n`` (yaw wrapped to (-pi, pi]).
+    """
+    C_b_n = euler_to_dcm(roll, pitch, yaw)
+    omega_ie_n = earth_rate_n(lat)
+    omega_en_n = transport_rate_n(lat, height, v_n)
+    C_n_b = np.swapaxes(C_b_n, -1, -2)
+    omega_ib_b = _body_rate_nb(t, C_b_n) + np.einsum("nij,nj->ni", C_n_b, omega_ie_n + omega_en_n)
+    f_n = specific_force_n(lat, height, v_n, a_n)
+    f_ib_b = np.einsum("nij,nj->ni", C_n_b, f_n)
+    roll, pitch, yaw = dcm_to_euler(C_b_n)
+    return Trajectory(time=t, lat=lat, lon=lon, height=height, v_n=v_n, a_n=a_n, roll=roll, pitch=pitch,
+                      yaw=yaw, omega_ib_b=omega_ib_b, f_ib_b=f_ib_b)
+
+
 def fly(plan: FlightPlan, fine_rate_hz: float) -> Trajectory:
-    """The plan's truth trajectory and ideal IMU on a grid of ``fine_rate_hz`` from t = 0 s."""
+    """The helicopter survey's truth trajectory and ideal IMU on a grid of ``fine_rate_hz`` from t = 0 s."""
     rng = np.random.default_rng(plan.seed)
     n = int(round(plan.duration_s * fine_rate_hz)) + 1
     t = np.arange(n) / fine_rate_hz
@@ -163,15 +216,4 @@ def fly(plan: FlightPlan, fine_rate_hz: float) -> Trajectory:
     roll = np.arctan(v_horizontal_air * heading_rate / g) + perturbation[:, 0]
     pitch = np.arctan2(-v_down, v_horizontal_air) + np.radians(plan.trim_pitch_deg) + perturbation[:, 1]
     yaw = wrap_pi(psi_air + 0.25 * perturbation[:, 2])
-    C_b_n = euler_to_dcm(roll, pitch, yaw)
-
-    omega_ie_n = earth_rate_n(lat)
-    omega_en_n = transport_rate_n(lat, height, v_n)
-    C_n_b = np.swapaxes(C_b_n, -1, -2)
-    omega_ib_b = _body_rate_nb(t, C_b_n) + np.einsum("nij,nj->ni", C_n_b, omega_ie_n + omega_en_n)
-    gravity_n = np.stack([np.zeros_like(g), np.zeros_like(g), g], axis=-1)
-    f_n = a_n + np.cross(2.0 * omega_ie_n + omega_en_n, v_n) - gravity_n
-    f_ib_b = np.einsum("nij,nj->ni", C_n_b, f_n)
-    roll, pitch, yaw = dcm_to_euler(C_b_n)
-    return Trajectory(time=t, lat=lat, lon=lon, height=height, v_n=v_n, a_n=a_n, roll=roll, pitch=pitch,
-                      yaw=yaw, omega_ib_b=omega_ib_b, f_ib_b=f_ib_b)
+    return imu_from_kinematics(t, lat, lon, height, v_n, a_n, roll, pitch, yaw)

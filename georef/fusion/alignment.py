@@ -1,0 +1,364 @@
+"""Alignment from any motion: optimisation-based alignment of attitude, velocity and biases against GNSS.
+
+No heading source is assumed: the track is not taken as the heading. Over a window that starts at the first
+row, the IMU is integrated in its own initial body frame (:mod:`georef.fusion.alignment_kernel`), and the
+attitude ``C0`` at the window's start is the rotation that carries those body-frame integrals onto the GNSS
+positions (the position-integration form of optimisation-based alignment; Wu & Pan 2013, "Velocity/position
+integration formula part I: application to in-flight coarse alignment", IEEE T-AES 49(2); Silson 2011). In the
+local tangent frame at the first fix (NED, metres):
+
+    r_ant(t) = r0 + v0 τ + ∫∫ g - c(t) + C0 (β(t) + λ(t)) - [ω_ie x] C0 γ(t) - τ [ω_ie x] C0 λ(t)
+
+with ``τ = t - t0``, β, γ, λ the body-frame integrals, ``ω_ie`` the Earth rate and ``c`` the known Coriolis and
+gravity-tilt terms (from the GNSS velocity and the horizontal displacement). The steps:
+
+1. the gyro bias starts from the mean rate over a quasi-static start (GNSS speed under 0.5 m/s: a hover or a
+   standstill), else from zero (or, on a restart, the filter's estimate);
+2. a linear solve with ``C0`` as a general 3x3 matrix (no quadrant or heading guess), projected onto the
+   rotations;
+3. Gauss-Newton over the rotation, ``r0``, ``v0``, the gyro and accelerometer biases, with Huber weights;
+4. when that fits badly (variance factor over ``VARIANCE_FACTOR_RETRY``: a large gyro bias, a poor linear
+   start), the bias about the initial vertical is screened on a grid up to consumer grade (0.12 rad/s) and the
+   best candidates are refitted from four headings; the best fit wins.
+
+The heading is *observable* when the window holds horizontal acceleration in more than one direction of the
+body, or turns. The window grows (30, 60, 120 s, ... the whole log) until the heading *at the window's start* is
+known to better than ``HEADING_SIGMA_OK`` (which needs the gyro bias about the vertical too). When no window
+gets there but one knows the heading at some later time (a long hover before the first manoeuvre), that
+window is used: the filter starts at the first row with the solution and its full covariance (the heading's
+correlation with the gyro bias included), and the smoother carries the well-determined heading back to the
+first row. A hovering start therefore aligns once the aircraft moves.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from georef.frames import C_e_n, C_n_e, earth_rate_n, ecef_to_geodetic, geodetic_to_ecef, normal_gravity, skew
+from georef.frames.rotations import rotvec_to_dcm
+from georef.kernels import load as load_kernel
+
+#: a heading known to better than this [rad] somewhere in the window ends the search
+HEADING_SIGMA_OK = np.radians(2.0)
+#: quasi-static: GNSS ground speed below this [m/s]
+STATIC_SPEED = 0.5
+#: the grid over the vertical gyro bias [rad/s]: +- this range
+GYRO_BIAS_RANGE = 0.12
+WINDOWS_S = (30.0, 60.0, 120.0, 240.0, 480.0)
+HUBER_K = 2.5
+#: a first fit whose variance factor exceeds this is retried from other starting points, when the window's
+#: motion shows the heading to better than RETRY_HEADING_SIGMA [rad] somewhere
+VARIANCE_FACTOR_RETRY = 4.0
+RETRY_HEADING_SIGMA = np.radians(20.0)
+#: prior sigmas of the biases in the fit (consumer grade: turn-on up to 0.1 rad/s and 0.5 m/s^2)
+PRIOR_GYRO_BIAS = 0.2
+PRIOR_ACCEL_BIAS = 1.0
+
+
+@dataclass
+class Alignment:
+    """The filter's starting point: state at ``start_row`` and its covariance, with how it was found.
+
+    ``covariance`` (15, 15) is in the filter's error-state order and sign (estimate minus truth): NED position
+    [m], NED velocity [m/s], attitude φ [rad] (``Ĉ = (I - [φ x]) C``), gyro bias [rad/s], accelerometer bias
+    [m/s^2]. ``position`` is the IMU's latitude, longitude [rad] and height [m].
+    """
+
+    start_row: int
+    position: np.ndarray
+    v_n: np.ndarray
+    C_b_n: np.ndarray
+    gyro_bias: np.ndarray
+    accel_bias: np.ndarray
+    covariance: np.ndarray
+    heading_source: str
+    observable: bool
+    heading_sigma: float       # best heading sigma inside the window [rad]
+    heading_time: float        # when [s]
+    window: tuple[float, float]
+    n_fixes: int
+    variance_factor: float     # a-posteriori variance factor of the GNSS fit (1 = as the sigmas say)
+    static_start_s: float      # length of the quasi-static start [s] used for the gyro bias, 0 if none
+
+
+@dataclass
+class _Fixes:
+    time: np.ndarray       # (K,) s
+    r: np.ndarray          # (K, 3) tangent-frame NED antenna positions [m]
+    sigma: np.ndarray      # (K, 3) NED sigmas [m]
+    v: np.ndarray          # (K, 3) GNSS-derived NED velocity [m/s] (central differences)
+
+
+def _tangent_frame(lat0: float, lon0: float, h0: float, lat: np.ndarray, lon: np.ndarray, h: np.ndarray) -> np.ndarray:
+    r0 = geodetic_to_ecef(lat0, lon0, h0)
+    return (geodetic_to_ecef(lat, lon, h) - r0) @ C_e_n(lat0, lon0).T
+
+
+def _fix_velocity(time: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """NED velocity [m/s] at each fix from neighbouring fixes (central where possible)."""
+    v = np.zeros_like(r)
+    if len(time) < 2:
+        return v
+    v[1:-1] = (r[2:] - r[:-2]) / (time[2:] - time[:-2])[:, None]
+    v[0] = (r[1] - r[0]) / (time[1] - time[0])
+    v[-1] = (r[-1] - r[-2]) / (time[-1] - time[-2])
+    return v
+
+
+def _known_terms(fixes: _Fixes, t0: float, lat0: float, h0: float, omega_ie: np.ndarray) -> np.ndarray:
+    """``∫∫ g - c`` at each fix [m]: normal gravity at the fix heights, Coriolis ``-2 ω_ie x v`` and the tilt of
+    gravity ``-(g/R) r_h`` over the tangent plane, integrated twice from t0 on a 0.1 s grid."""
+    t_end = fixes.time[-1]
+    grid = np.arange(t0, t_end + 0.1, 0.1)
+    v = np.stack([np.interp(grid, fixes.time, fixes.v[:, k]) for k in range(3)], -1)
+    r = np.stack([np.interp(grid, fixes.time, fixes.r[:, k]) for k in range(3)], -1)
+    g = normal_gravity(lat0, h0 - r[:, 2])
+    R = 6.371e6
+    acc = -2.0 * np.cross(omega_ie, v)
+    acc[:, 0] -= g * r[:, 0] / R
+    acc[:, 1] -= g * r[:, 1] / R
+    acc[:, 2] += g
+    dt = np.diff(grid)[:, None]
+    vel = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (acc[1:] + acc[:-1]) * dt, axis=0)])
+    pos = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (vel[1:] + vel[:-1]) * dt, axis=0)])
+    return np.stack([np.interp(fixes.time, grid, pos[:, k]) for k in range(3)], -1)
+
+
+def _nearest_rotation(M: np.ndarray) -> np.ndarray:
+    U, _, Vt = np.linalg.svd(M)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+class _Window:
+    """One alignment window: the fixes in it and the model of their antenna positions."""
+
+    def __init__(self, t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, row0: int, fixes: _Fixes,
+                 lever: np.ndarray, known: np.ndarray, omega_ie: np.ndarray):
+        self.t, self.gyro, self.accel, self.row0 = t, gyro, accel, row0
+        self.fixes, self.lever, self.known, self.omega = fixes, lever, known, omega_ie
+        self.tau = fixes.time - t[row0]
+        self.W = skew(omega_ie)
+        self.kernel = load_kernel("align")
+
+    def integrals(self, bias_g: np.ndarray, bias_a: np.ndarray):
+        return self.kernel.preintegrate(self.t, self.gyro, self.accel, self.row0, bias_g, bias_a, self.lever,
+                                        self.fixes.time)
+
+    def linear_attitude(self, pre) -> tuple[np.ndarray, float]:
+        """``C0`` from the linear fit with ``C0`` a general matrix; returns it projected, and the weighted RSS."""
+        _, _, beta, gamma, lam = pre[:5]
+        K = len(self.tau)
+        y = (self.fixes.r - self.known).reshape(-1)
+        w = 1.0 / self.fixes.sigma.reshape(-1)
+        eye = np.eye(3)
+        A = np.zeros((K, 3, 15))
+        A[:, :, 0:3] = eye
+        A[:, :, 3:6] = self.tau[:, None, None] * eye
+        # vec(M) column-major: M x = (xᵀ ⊗ I) vec(M); -[ω x] M γ = -(γᵀ ⊗ [ω x]) vec(M)
+        x = beta + lam
+        A[:, :, 6:15] = (np.einsum("kj,ab->kajb", x, eye) - np.einsum("kj,ab->kajb", gamma, self.W)).reshape(K, 3, 9)
+        A = A.reshape(3 * K, 15)
+        sol, *_ = np.linalg.lstsq(A * w[:, None], y * w, rcond=1e-10)
+        M = sol[6:15].reshape(3, 3, order="F")
+        rss = float(np.sum(((A @ sol - y) * w) ** 2))
+        return _nearest_rotation(M), rss
+
+    def residual_and_jacobian(self, C0, r0, v0, pre):
+        """Residuals (measured minus modelled, (3K,)) and their Jacobian (3K, 15) with respect to the
+        corrections (rotation ρ with C0 ← exp([ρ x]) C0, r0, v0, b_g, b_a)."""
+        _, _, beta, gamma, lam, _, _, _, db_g, db_a, dl_g = pre
+        K = len(self.tau)
+        tau = self.tau[:, None]
+        Cb = beta @ C0.T
+        Cl = lam @ C0.T
+        Cg = gamma @ C0.T
+        model = r0 + v0 * tau + self.known + Cb + Cl - Cg @ self.W.T - tau * (Cl @ self.W.T)
+        res = self.fixes.r - model
+        Jac = np.zeros((K, 3, 15))
+        Jac[:, :, 0:3] = -skew(Cb + Cl) + self.W @ skew(Cg) + tau[:, :, None] * (self.W @ skew(Cl))
+        Jac[:, :, 3:6] = np.eye(3)
+        Jac[:, :, 6:9] = tau[:, :, None] * np.eye(3)
+        Jac[:, :, 9:12] = C0 @ (db_g + dl_g)
+        Jac[:, :, 12:15] = C0 @ db_a
+        return res.reshape(-1), Jac.reshape(3 * K, 15)
+
+
+def _static_start(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, row0: int, fixes: _Fixes,
+                  lat0: float) -> tuple[np.ndarray | None, float]:
+    """Mean gyro [rad/s] over a quasi-static start (GNSS speed < STATIC_SPEED for >= 3 s), minus the vertical
+    Earth rate; and its length [s]. ``None`` when the start is not quasi-static."""
+    speed = np.hypot(fixes.v[:, 0], fixes.v[:, 1])
+    moving = np.flatnonzero(speed >= STATIC_SPEED)
+    t_end = fixes.time[moving[0]] if len(moving) else fixes.time[-1]
+    length = t_end - t[row0]
+    if length < 3.0:
+        return None, 0.0
+    rows = slice(row0, int(np.searchsorted(t, t_end)))
+    f = accel[rows].mean(axis=0)
+    down_b = -f / np.linalg.norm(f)
+    omega_vertical = -np.sin(lat0) * 7.292115e-5  # Earth rate along down, NED
+    return gyro[rows].mean(axis=0) - omega_vertical * down_b, float(length)
+
+
+def _gauss_newton(win: _Window, C0: np.ndarray, r0: np.ndarray, v0: np.ndarray, bias_g: np.ndarray,
+                  bias_a: np.ndarray, iterations: int = 12):
+    """Robust Levenberg-Marquardt from a starting point (Huber weights, a prior on the biases); returns the
+    solution, its covariance (15, 15) in the correction order (ρ, r0, v0, b_g, b_a; true = estimate +
+    correction), the variance factor and the preintegration at the solution. The damping keeps a window whose
+    motion does not show the heading from wandering off along that direction."""
+    prior = np.concatenate([np.zeros(9), np.full(3, 1.0 / PRIOR_GYRO_BIAS**2), np.full(3, 1.0 / PRIOR_ACCEL_BIAS**2)])
+    sigma = win.fixes.sigma.reshape(-1)
+
+    def evaluate(C0, r0, v0, bias_g, bias_a, pre):
+        res, Jac = win.residual_and_jacobian(C0, r0, v0, pre)
+        z = res / sigma
+        scale = max(1.4826 * float(np.median(np.abs(z))), 1.0)
+        weights = np.minimum(1.0, HUBER_K * scale / np.maximum(np.abs(z), 1e-12))
+        w = weights / sigma**2
+        x_b = np.concatenate([np.zeros(9), bias_g, bias_a])
+        cost = float(np.sum(w * res**2) + np.sum(prior * x_b**2))
+        return res, Jac, w, cost, x_b
+
+    pre = win.integrals(bias_g, bias_a)
+    res, Jac, w, cost, x_b = evaluate(C0, r0, v0, bias_g, bias_a, pre)
+    damping = 1e-3
+    for _ in range(iterations):
+        N = Jac.T @ (Jac * w[:, None]) + np.diag(prior)
+        b = Jac.T @ (res * w) - prior * x_b
+        improved = False
+        while damping < 1e8:
+            delta = np.linalg.solve(N + damping * np.diag(np.diag(N)), b)
+            trial = (rotvec_to_dcm(delta[0:3]) @ C0, r0 + delta[3:6], v0 + delta[6:9], bias_g + delta[9:12],
+                     bias_a + delta[12:15])
+            trial_pre = win.integrals(trial[3], trial[4])
+            t_res, t_Jac, t_w, t_cost, t_xb = evaluate(*trial, trial_pre)
+            if t_cost <= cost:
+                C0, r0, v0, bias_g, bias_a = trial
+                pre, res, Jac, w, cost, x_b = trial_pre, t_res, t_Jac, t_w, t_cost, t_xb
+                damping = max(damping / 10.0, 1e-9)
+                improved = True
+                break
+            damping *= 10.0
+        if not improved or (np.all(np.abs(delta[0:3]) < 1e-6) and np.all(np.abs(delta[9:12]) < 1e-8)):
+            break
+    N = Jac.T @ (Jac * w[:, None]) + np.diag(prior)
+    dof = max(len(res) - 15, 1)
+    variance_factor = float(np.sum(w * res**2) / dof)
+    cov = np.linalg.inv(N) * max(variance_factor, 1.0)
+    return C0, r0, v0, bias_g, bias_a, cov, variance_factor, pre
+
+
+def _heading_sigmas(C0: np.ndarray, pre, cov: np.ndarray) -> np.ndarray:
+    """1-sigma [rad] of the heading at each fix time: ``φ(t) = ρ + C(t) J(t) δb_g`` (about down)."""
+    dC, J = pre[0], pre[5]
+    G = np.zeros((len(dC), 3, 15))
+    G[:, :, 0:3] = np.eye(3)
+    G[:, :, 9:12] = C0 @ dC @ J
+    down = G[:, 2, :]
+    return np.sqrt(np.maximum(np.einsum("ki,ij,kj->k", down, cov, down), 0.0))
+
+
+def align(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, fix_time: np.ndarray, lat: np.ndarray,
+          lon: np.ndarray, height: np.ndarray, sigma_neu: np.ndarray, lever_arm: np.ndarray,
+          start_time: float | None = None, bias_g: np.ndarray | None = None,
+          bias_a: np.ndarray | None = None) -> Alignment:
+    """Align the INS from the motion over a growing window that starts at the first row at or after the first
+    fix (or at ``start_time``).
+
+    Inputs: IMU row times [s] (N,), gyro [rad/s] and specific force [m/s^2] (N, 3) in the body frame; GNSS
+    antenna fixes: times [s], latitude and longitude [rad], height [m], NED sigmas [m] (K, 3); the body lever arm
+    IMU -> antenna [m]; optional starting bias guesses (a restart carries the filter's). Raises ``ValueError``
+    when fewer than 6 fixes follow the start.
+    """
+    t0_fix = fix_time[0] if start_time is None else start_time
+    row0 = int(np.searchsorted(t, t0_fix, side="left"))
+    first = int(np.searchsorted(fix_time, t[min(row0, len(t) - 1)], side="left"))
+    if row0 >= len(t) - 2 or len(fix_time) - first < 6:
+        raise ValueError("fewer than 6 GNSS fixes inside the IMU span after the start")
+    lat0, lon0, h0 = float(lat[first]), float(lon[first]), float(height[first])
+    r_all = _tangent_frame(lat0, lon0, h0, lat[first:], lon[first:], height[first:])
+    all_fixes = _Fixes(time=fix_time[first:], r=r_all, sigma=sigma_neu[first:],
+                       v=_fix_velocity(fix_time[first:], r_all))
+    omega_ie = earth_rate_n(lat0)
+    lever = np.asarray(lever_arm, dtype=float)
+    static_bias, static_length = _static_start(t, gyro, accel, row0, all_fixes, lat0)
+    guess_g = np.zeros(3) if bias_g is None else np.asarray(bias_g, float).copy()
+    if bias_g is None and static_bias is not None:
+        guess_g = static_bias
+    guess_a = np.zeros(3) if bias_a is None else np.asarray(bias_a, float).copy()
+
+    t_end_data = min(t[-1], all_fixes.time[-1])
+    tried = []
+    for length in (*WINDOWS_S, np.inf):
+        t_end = min(t[row0] + length, t_end_data)
+        inside = all_fixes.time <= t_end
+        if inside.sum() < 6:
+            continue
+        fixes = _Fixes(time=all_fixes.time[inside], r=all_fixes.r[inside], sigma=all_fixes.sigma[inside],
+                       v=all_fixes.v[inside])
+        known = _known_terms(fixes, t[row0], lat0, h0, omega_ie)
+        win = _Window(t, gyro, accel, row0, fixes, lever, known, omega_ie)
+        solution = _fit(win, guess_g, guess_a)
+        # a bad fit of a window whose motion does show the heading: retry from other starting points (a large
+        # gyro bias, a poor linear start); a window without that motion gains nothing from them
+        if solution[6] > VARIANCE_FACTOR_RETRY and \
+                np.min(_heading_sigmas(solution[0], solution[7], solution[5])) < RETRY_HEADING_SIGMA:
+            solution = min([solution, *_multi_start(win, guess_g, guess_a)], key=lambda s: s[6])
+        C0, r0, v0, b_g_fit, b_a_fit, cov, vf, pre = solution
+        sig = _heading_sigmas(C0, pre, cov)
+        k_best = int(np.argmin(sig))
+        tried.append((C0, r0, v0, b_g_fit, b_a_fit, cov, vf, fixes, sig[k_best], fixes.time[k_best], t_end, sig[0]))
+        # done when the heading is known at the start; a window that knows it only later is kept in reserve
+        if sig[0] < HEADING_SIGMA_OK or t_end >= t_end_data:
+            break
+    if not tried:
+        raise ValueError("fewer than 6 GNSS fixes inside the IMU span after the start")
+    at_start = [w for w in tried if w[11] < HEADING_SIGMA_OK]
+    later = [w for w in tried if w[8] < HEADING_SIGMA_OK]
+    best = at_start[0] if at_start else later[0] if later else tried[-1]
+    C0, r0, v0, b_g_fit, b_a_fit, cov, vf, fixes, heading_sigma, heading_time, t_end, _ = best
+    # the IMU's geodetic position at the start row from the tangent-frame position
+    r_e = geodetic_to_ecef(lat0, lon0, h0) + C_n_e(lat0, lon0) @ r0
+    lat_s, lon_s, h_s = ecef_to_geodetic(r_e[None, :])
+    # tangent frame -> local NED at the start position (they differ by the small angle of the displacement)
+    C_t_n = C_e_n(lat_s[0], lon_s[0]) @ C_n_e(lat0, lon0)
+    # correction order (ρ, r0, v0, b_g, b_a), true = estimate + correction -> filter errors (estimate - truth)
+    sign = np.concatenate([np.full(3, 1.0), np.full(12, -1.0)])
+    cov_filter = cov * np.outer(sign, sign)
+    return Alignment(start_row=row0, position=np.array([lat_s[0], lon_s[0], h_s[0]]), v_n=C_t_n @ v0,
+                     C_b_n=C_t_n @ C0, gyro_bias=b_g_fit, accel_bias=b_a_fit, covariance=cov_filter,
+                     heading_source="motion", observable=bool(heading_sigma < HEADING_SIGMA_OK),
+                     heading_sigma=float(heading_sigma), heading_time=float(heading_time),
+                     window=(float(t[row0]), float(t_end)), n_fixes=len(fixes.time), variance_factor=vf,
+                     static_start_s=static_length)
+
+
+def _fit(win: _Window, bias_g: np.ndarray, bias_a: np.ndarray, heading_turn: float = 0.0):
+    """Linear attitude (turned by ``heading_turn`` [rad] about down), then Gauss-Newton."""
+    C0, _ = win.linear_attitude(win.integrals(bias_g, bias_a))
+    if heading_turn:
+        c, s = np.cos(heading_turn), np.sin(heading_turn)
+        C0 = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ C0
+    r0 = win.fixes.r[0] - C0 @ win.lever
+    return _gauss_newton(win, C0, r0, win.fixes.v[0], bias_g, bias_a)
+
+
+def _multi_start(win: _Window, bias_g: np.ndarray, bias_a: np.ndarray) -> list:
+    """Fits from other starting points, for when the first one fits badly: the gyro bias about the initial
+    vertical screened on a grid (+-GYRO_BIAS_RANGE, step ~ 1/(2 T)) by the linear fit's residual, and the
+    best three screened biases each from four headings."""
+    f0 = win.accel[win.row0:win.row0 + 50].mean(axis=0)
+    down_b = -f0 / np.linalg.norm(f0)
+    span = max(float(win.tau[-1]), 1.0)
+    step = 0.5 / span
+    offsets = np.arange(-GYRO_BIAS_RANGE, GYRO_BIAS_RANGE + step / 2, step)
+    rss = np.array([win.linear_attitude(win.integrals(bias_g + o * down_b, bias_a))[1] for o in offsets])
+    starts = offsets[np.argsort(rss)[:3]]
+    out = []
+    for offset in starts:
+        for turn in (0.0, 0.5 * np.pi, np.pi, 1.5 * np.pi):
+            out.append(_fit(win, bias_g + offset * down_b, bias_a, turn))
+    return out

@@ -1,0 +1,180 @@
+"""The full-state filters' noise model: a prior from the datasheet and the data, adapted to the innovations.
+
+The preset (or the ``[imu]`` datasheet values) is a *prior*, not the answer. The answer is fitted to the data
+by expectation-maximisation over the smoother (Shumway & Stoffer 1982, "An approach to time series smoothing
+and forecasting using the EM algorithm", J. Time Series Analysis 3(4); Särkkä 2013, "Bayesian Filtering and
+Smoothing", ch. 12): each noise *block* — GNSS horizontal and vertical variance, the unit's angle noise, white
+specific force and angular rate (horizontal and vertical), bias drives, the unit's error drives — has one scale
+factor. A pass of the filter and smoother gives, per block, the smoothed residuals normalised by the block's
+modelled covariance (``T``), the normalised posterior variance (``U``) and the number of scalar residuals
+(``N``). The EM update of the block's variance ``s`` is ``s (T + U) / N``. It is taken as a maximum a
+posteriori step with a conjugate (inverse-gamma) prior of ``PRIOR_WEIGHT`` pseudo-residuals at the datasheet
+value, ``s_new = (s (T + U) + ν s_0) / (N + ν)``, so a block the data cannot see stays at its prior instead of
+wandering. At the fixed point the smoothed residuals of every block are consistent with their modelled
+covariance, which is what the normalised innovations are then checked against.
+
+Units: ``q_*`` are continuous-time densities (m^2/s^3 for specific force, rad^2/s for angular rate, rad^2/s^3
+and m^2/s^5 for bias drives), ``r_*`` variances [rad^2], ``tau_*`` correlation times [s], ``r_scale_*``
+factors on the GNSS variances.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+
+from georef.fusion import ins_kernel as layout
+from georef.imu_errors import ImuErrorModel, white_noise_sigma
+
+#: pseudo-residuals of the prior in the MAP step
+PRIOR_WEIGHT = 10.0
+#: one update changes a block by at most this factor
+MAX_STEP_FACTOR = 10.0
+
+#: EM block -> the NoiseModel field it scales
+BLOCK_FIELDS: dict[int, str] = {
+    layout.B_GNSS_H: "r_scale_h", layout.B_GNSS_V: "r_scale_v", layout.B_UNIT_R_LEVEL: "r_unit_level",
+    layout.B_UNIT_R_YAW: "r_unit_yaw", layout.B_VEL_H: "q_vel_h", layout.B_VEL_V: "q_vel_v", layout.B_ATT_H: "q_att_h",
+    layout.B_ATT_V: "q_att_v", layout.B_BG: "q_bg", layout.B_BA: "q_ba", layout.B_UNIT_LEVEL: "q_unit_level",
+    layout.B_UNIT_DRIFT: "q_unit_drift",
+}
+#: blocks that only mean something when the unit's attitude aids the filter
+UNIT_BLOCKS = (layout.B_UNIT_R_LEVEL, layout.B_UNIT_R_YAW, layout.B_UNIT_LEVEL, layout.B_UNIT_DRIFT)
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Noise densities and variances of the full-state filters (SI units, see the module docstring)."""
+
+    q_vel_h: float
+    q_vel_v: float
+    q_att_h: float
+    q_att_v: float
+    q_bg: float
+    tau_g: float
+    q_ba: float
+    tau_a: float
+    q_unit_level: float
+    tau_unit: float
+    q_unit_drift: float
+    r_unit_level: float
+    r_unit_yaw: float
+    r_scale_h: float = 1.0
+    r_scale_v: float = 1.0
+
+    def as_array(self) -> np.ndarray:
+        """The kernel's noise vector (``ins_kernel.N_NOISE`` entries in the order of its named indices)."""
+        out = np.empty(layout.N_NOISE)
+        out[layout.Q_VEL_H], out[layout.Q_VEL_V] = self.q_vel_h, self.q_vel_v
+        out[layout.Q_ATT_H], out[layout.Q_ATT_V] = self.q_att_h, self.q_att_v
+        out[layout.Q_BG], out[layout.INV_TAU_G] = self.q_bg, 1.0 / self.tau_g
+        out[layout.Q_BA], out[layout.INV_TAU_A] = self.q_ba, 1.0 / self.tau_a
+        out[layout.Q_UNIT_LEVEL], out[layout.INV_TAU_UNIT] = self.q_unit_level, 1.0 / self.tau_unit
+        out[layout.Q_UNIT_DRIFT] = self.q_unit_drift
+        out[layout.R_UNIT_LEVEL], out[layout.R_UNIT_YAW] = self.r_unit_level, self.r_unit_yaw
+        out[layout.R_SCALE_H], out[layout.R_SCALE_V] = self.r_scale_h, self.r_scale_v
+        return out
+
+    def block_value(self, block: int) -> float:
+        return float(getattr(self, BLOCK_FIELDS[block]))
+
+    def with_blocks(self, values: dict[int, float]) -> NoiseModel:
+        return replace(self, **{BLOCK_FIELDS[b]: float(v) for b, v in values.items()})
+
+    def ratio_to(self, other: NoiseModel) -> dict[str, float]:
+        """Field-by-field ratio self / other (for reports)."""
+        return {f.name: getattr(self, f.name) / getattr(other, f.name) for f in fields(self)
+                if getattr(other, f.name) not in (0.0,)}
+
+    # readable figures for summaries and reports -----------------------------------------------------------
+    @property
+    def vrw_h(self) -> float:
+        """Horizontal velocity random walk [m/s/sqrt(h)]."""
+        return float(np.sqrt(self.q_vel_h) * 60.0)
+
+    @property
+    def vrw_v(self) -> float:
+        return float(np.sqrt(self.q_vel_v) * 60.0)
+
+    @property
+    def arw_h(self) -> float:
+        """Angle random walk about north/east [deg/sqrt(h)]."""
+        return float(np.degrees(np.sqrt(self.q_att_h)) * 60.0)
+
+    @property
+    def arw_v(self) -> float:
+        return float(np.degrees(np.sqrt(self.q_att_v)) * 60.0)
+
+
+def datasheet_prior(model: ImuErrorModel, unit_level_sigma_deg: float, unit_level_time_s: float,
+                    unit_drift_psd: float, unit_angle_noise_deg: float) -> NoiseModel:
+    """The prior from a datasheet model (preset + overrides) and the unit's attitude error settings.
+
+    Biases are Gauss-Markov processes with the datasheet's instability as steady-state sigma, driven by
+    ``2 sigma^2 / tau``.
+    """
+    level = np.radians(unit_level_sigma_deg)
+    angle = np.radians(unit_angle_noise_deg) ** 2
+    return NoiseModel(
+        q_vel_h=model.accel_white_psd, q_vel_v=model.accel_white_psd,
+        q_att_h=model.gyro_white_psd, q_att_v=model.gyro_white_psd,
+        q_bg=2.0 * model.gyro_markov_sigma**2 / model.gyro_bias_corr_time_s, tau_g=model.gyro_bias_corr_time_s,
+        q_ba=2.0 * model.accel_markov_sigma**2 / model.accel_bias_corr_time_s, tau_a=model.accel_bias_corr_time_s,
+        q_unit_level=2.0 * level**2 / unit_level_time_s, tau_unit=unit_level_time_s, q_unit_drift=unit_drift_psd,
+        r_unit_level=angle, r_unit_yaw=angle)
+
+
+def data_white_noise(time: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> tuple[float, float, float, float]:
+    """Upper bounds on the white noise densities the data show: (q_vel_h, q_vel_v, q_att_h, q_att_v).
+
+    Robust first differences at the row rate see white noise *and* vibration of any spectrum (and fast
+    motion), so they bound the density the filter needs from above. Narrow-band rotor vibration integrates to
+    almost nothing and makes this bound far too large, which is why it only starts the adaptation, which then
+    comes down to what the innovations support. Body axes are taken as roughly level: x, y -> horizontal.
+    """
+    dt = float(np.median(np.diff(time)))
+    acc = white_noise_sigma(accel) ** 2 * dt
+    gyr = white_noise_sigma(gyro) ** 2 * dt
+    return float(acc[:2].mean()), float(acc[2]), float(gyr[:2].mean()), float(gyr[2])
+
+
+def starting_point(prior: NoiseModel, time: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> NoiseModel:
+    """The first pass's noise: the prior raised to the data's white-noise bound where that is larger.
+
+    An overestimate keeps the first pass from trusting the inertial solution more than the data allow (a filter
+    with too little process noise diverges and locks out the fixes that could save it); the EM steps then bring
+    every block down to what the data support.
+    """
+    q_vel_h, q_vel_v, q_att_h, q_att_v = data_white_noise(time, gyro, accel)
+    return replace(prior, q_vel_h=max(prior.q_vel_h, q_vel_h), q_vel_v=max(prior.q_vel_v, q_vel_v),
+                   q_att_h=max(prior.q_att_h, q_att_h), q_att_v=max(prior.q_att_v, q_att_v))
+
+
+def em_step(noise: NoiseModel, prior: NoiseModel, stats: np.ndarray, blocks: tuple[int, ...],
+            prior_weight: float = PRIOR_WEIGHT, accelerated: bool = True,
+            max_factor: float = MAX_STEP_FACTOR) -> tuple[NoiseModel, dict[int, float]]:
+    """One update of the given blocks from the smoother's statistics (N_BLOCKS, 3) = (T, U, N).
+
+    Plain MAP-EM: ``s (T + U) + ν s0`` over ``N + ν``. Accelerated (default): the variance-component form
+    ``(s T + ν s0) / (N - U + ν)`` (Förstner 1979; Koch 1999, "Parameter estimation and hypothesis testing in
+    linear models", 3.6), the same fixed point, whose log-step is EM's divided by the share of the block that
+    the data inform, ``1 - U/N``: it moves as fast along a weakly informed block as along a well informed one.
+    Each step is limited to a factor ``max_factor``. Returns the new model and, per block, the EM ratio
+    ``(T + U) / N`` (1 at the fixed point).
+    """
+    values: dict[int, float] = {}
+    ratios: dict[int, float] = {}
+    for block in blocks:
+        T, U, N = stats[block]
+        if N <= 0:
+            continue
+        current = noise.block_value(block)
+        s0 = prior.block_value(block)
+        ratios[block] = float((T + U) / N)
+        if accelerated:
+            new = (current * T + prior_weight * s0) / max(N - U + prior_weight, 1e-9)
+        else:
+            new = (current * (T + U) + prior_weight * s0) / (N + prior_weight)
+        values[block] = float(np.clip(new, current / max_factor, current * max_factor))
+    return noise.with_blocks(values), ratios
