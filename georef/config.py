@@ -42,6 +42,8 @@ class ProcessingConfig:
     gnss_latency: float | None = None
     #: magnetic declination [deg, east positive] for a magnetometer heading (imu.csv with mag_x..z)
     magnetic_declination: float = 0.0
+    #: "auto" (non-holonomic constraints when the motion shows a ground vehicle), "ground" or "air"
+    vehicle: str = "auto"
     #: projected CRS for easting/northing, e.g. "EPSG:3765"
     crs: str | None = None
     #: POS column role -> header name remapping
@@ -83,6 +85,8 @@ class ProcessingConfig:
             raise ValueError(f"unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
         if self.graph_solver not in ("lm", "isam2"):
             raise ValueError(f"graph_solver must be 'lm' or 'isam2', got {self.graph_solver!r}")
+        if self.vehicle not in ("auto", "ground", "air"):
+            raise ValueError(f"vehicle must be 'auto', 'ground' or 'air', got {self.vehicle!r}")
         if self.attitude_source not in ("unit", "imu"):
             raise ValueError(f"attitude_source must be 'unit' or 'imu', got {self.attitude_source!r}")
         for name in ("lever_arm_gnss", "lever_arm_camera", "boresight", "gnss_sigma"):
@@ -116,7 +120,7 @@ _SECTIONS = {
              "unit_aiding"},
     "axis": {"axis_accel_sigma", "axis_bias_sigma", "axis_bias_time"},
     "gnss_gate": {"gate_chi2"},
-    "ins": {"imu_preset", "covariance_rate", "magnetic_declination"},
+    "ins": {"imu_preset", "covariance_rate", "magnetic_declination", "vehicle"},
     "graph": {"graph_solver", "graph_robust"},
 }
 

@@ -52,6 +52,8 @@ HUBER_K = 2.5
 #: motion shows the heading to better than RETRY_HEADING_SIGMA [rad] somewhere
 VARIANCE_FACTOR_RETRY = 4.0
 RETRY_HEADING_SIGMA = np.radians(20.0)
+#: an IMU gap this soon after the start [s] moves the start after the gap
+GAP_SKIP_S = 10.0
 #: prior sigmas of the biases in the fit (consumer grade: turn-on up to 0.1 rad/s and 0.5 m/s^2)
 PRIOR_GYRO_BIAS = 0.2
 PRIOR_ACCEL_BIAS = 1.0
@@ -204,12 +206,14 @@ def _static_start(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, row0: int,
 
 
 def _gauss_newton(win: _Window, C0: np.ndarray, r0: np.ndarray, v0: np.ndarray, bias_g: np.ndarray,
-                  bias_a: np.ndarray, iterations: int = 12):
-    """Robust Levenberg-Marquardt from a starting point (Huber weights, a prior on the biases); returns the
+                  bias_a: np.ndarray, iterations: int = 12, prior_sigma: tuple[float, float] | None = None):
+    """Robust Levenberg-Marquardt from a starting point (Huber weights, a zero-mean prior on the biases with
+    sigmas ``prior_sigma`` [rad/s, m/s^2], consumer grade by default); returns the
     solution, its covariance (15, 15) in the correction order (ρ, r0, v0, b_g, b_a; true = estimate +
     correction), the variance factor and the preintegration at the solution. The damping keeps a window whose
     motion does not show the heading from wandering off along that direction."""
-    prior = np.concatenate([np.zeros(9), np.full(3, 1.0 / PRIOR_GYRO_BIAS**2), np.full(3, 1.0 / PRIOR_ACCEL_BIAS**2)])
+    sigma_g, sigma_a = prior_sigma or (PRIOR_GYRO_BIAS, PRIOR_ACCEL_BIAS)
+    prior = np.concatenate([np.zeros(9), np.full(3, 1.0 / sigma_g**2), np.full(3, 1.0 / sigma_a**2)])
     sigma = win.fixes.sigma.reshape(-1)
 
     def evaluate(C0, r0, v0, bias_g, bias_a, pre):
@@ -264,17 +268,28 @@ def _heading_sigmas(C0: np.ndarray, pre, cov: np.ndarray) -> np.ndarray:
 def align(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, fix_time: np.ndarray, lat: np.ndarray,
           lon: np.ndarray, height: np.ndarray, sigma_neu: np.ndarray, lever_arm: np.ndarray,
           start_time: float | None = None, bias_g: np.ndarray | None = None,
-          bias_a: np.ndarray | None = None) -> Alignment:
+          bias_a: np.ndarray | None = None, gaps: list[tuple[int, int]] | None = None,
+          datasheet_bias_sigma: tuple[float, float] | None = None) -> Alignment:
     """Align the INS from the motion over a growing window that starts at the first row at or after the first
     fix (or at ``start_time``).
 
     Inputs: IMU row times [s] (N,), gyro [rad/s] and specific force [m/s^2] (N, 3) in the body frame; GNSS
     antenna fixes: times [s], latitude and longitude [rad], height [m], NED sigmas [m] (K, 3); the body lever arm
-    IMU -> antenna [m]; optional starting bias guesses (a restart carries the filter's). Raises ``ValueError``
-    when fewer than 6 fixes follow the start.
+    IMU -> antenna [m]; optional starting bias guesses (a restart carries the filter's); the datasheet's turn-on
+    bias sigmas [rad/s, m/s^2], the prior of the fit unless the data reject it (then consumer grade, see
+    ``_fit_window``). No window spans an IMU
+    gap (``gaps``: (row before, row after) pairs): a gap in the first ``GAP_SKIP_S`` seconds moves the start after
+    it, and the window ends before the next one. Raises ``ValueError`` when fewer than 6 fixes follow the start.
     """
     t0_fix = fix_time[0] if start_time is None else start_time
     row0 = int(np.searchsorted(t, t0_fix, side="left"))
+    gap_after = np.array([b for _, b in (gaps or [])], dtype=int)  # first row after each gap
+    early = gap_after[(gap_after > row0) & (t[np.minimum(gap_after, len(t) - 1)] <= t[min(row0, len(t) - 1)]
+                                              + GAP_SKIP_S)]
+    if len(early):
+        row0 = int(early[-1])
+    later_gaps = gap_after[gap_after > row0]
+    last_row = int(later_gaps[0]) - 1 if len(later_gaps) else len(t) - 1
     first = int(np.searchsorted(fix_time, t[min(row0, len(t) - 1)], side="left"))
     if row0 >= len(t) - 2 or len(fix_time) - first < 6:
         raise ValueError("fewer than 6 GNSS fixes inside the IMU span after the start")
@@ -290,7 +305,7 @@ def align(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, fix_time: np.ndarr
         guess_g = static_bias
     guess_a = np.zeros(3) if bias_a is None else np.asarray(bias_a, float).copy()
 
-    t_end_data = min(t[-1], all_fixes.time[-1])
+    t_end_data = min(t[last_row], all_fixes.time[-1])
     tried = []
     for length in (*WINDOWS_S, np.inf):
         t_end = min(t[row0] + length, t_end_data)
@@ -301,12 +316,7 @@ def align(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, fix_time: np.ndarr
                        v=all_fixes.v[inside])
         known = _known_terms(fixes, t[row0], lat0, h0, omega_ie)
         win = _Window(t, gyro, accel, row0, fixes, lever, known, omega_ie)
-        solution = _fit(win, guess_g, guess_a)
-        # a bad fit of a window whose motion does show the heading: retry from other starting points (a large
-        # gyro bias, a poor linear start); a window without that motion gains nothing from them
-        if solution[6] > VARIANCE_FACTOR_RETRY and \
-                np.min(_heading_sigmas(solution[0], solution[7], solution[5])) < RETRY_HEADING_SIGMA:
-            solution = min([solution, *_multi_start(win, guess_g, guess_a)], key=lambda s: s[6])
+        solution = _fit_window(win, guess_g, guess_a, datasheet_bias_sigma)
         C0, r0, v0, b_g_fit, b_a_fit, cov, vf, pre = solution
         sig = _heading_sigmas(C0, pre, cov)
         k_best = int(np.argmin(sig))
@@ -336,14 +346,33 @@ def align(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, fix_time: np.ndarr
                      static_start_s=static_length)
 
 
-def _fit(win: _Window, bias_g: np.ndarray, bias_a: np.ndarray, heading_turn: float = 0.0):
+def _fit(win: _Window, bias_g: np.ndarray, bias_a: np.ndarray, heading_turn: float = 0.0,
+         prior_sigma: tuple[float, float] | None = None):
     """Linear attitude (turned by ``heading_turn`` [rad] about down), then Gauss-Newton."""
     C0, _ = win.linear_attitude(win.integrals(bias_g, bias_a))
     if heading_turn:
         c, s = np.cos(heading_turn), np.sin(heading_turn)
         C0 = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ C0
     r0 = win.fixes.r[0] - C0 @ win.lever
-    return _gauss_newton(win, C0, r0, win.fixes.v[0], bias_g, bias_a)
+    return _gauss_newton(win, C0, r0, win.fixes.v[0], bias_g, bias_a, prior_sigma=prior_sigma)
+
+
+def _fit_window(win: _Window, bias_g: np.ndarray, bias_a: np.ndarray,
+                datasheet_bias_sigma: tuple[float, float] | None):
+    """The window's fit. With the datasheet's bias sigmas as the prior first: a good IMU's biases are not to be
+    invented from a few minutes of data. When that fits badly (variance factor over ``VARIANCE_FACTOR_RETRY``),
+    the prior is widened to consumer grade, and when that still fits badly in a window whose motion shows the
+    heading, other starting points are tried (a large gyro bias, a poor linear start). The best fit wins."""
+    candidates = []
+    if datasheet_bias_sigma is not None:
+        candidates.append(_fit(win, bias_g, bias_a, prior_sigma=datasheet_bias_sigma))
+        if candidates[-1][6] <= VARIANCE_FACTOR_RETRY:
+            return candidates[-1]
+    candidates.append(_fit(win, bias_g, bias_a))
+    best = min(candidates, key=lambda s: s[6])
+    if best[6] > VARIANCE_FACTOR_RETRY and np.min(_heading_sigmas(best[0], best[7], best[5])) < RETRY_HEADING_SIGMA:
+        best = min([best, *_multi_start(win, bias_g, bias_a)], key=lambda s: s[6])
+    return best
 
 
 def _multi_start(win: _Window, bias_g: np.ndarray, bias_a: np.ndarray) -> list:

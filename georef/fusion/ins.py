@@ -33,7 +33,15 @@ from georef.frames import C_n_e, dcm_to_quat, euler_to_dcm, geodetic_to_ecef
 from georef.frames.rotations import dcm_to_euler, euler_error_jacobian, wrap_pi
 from georef.fusion import ins_kernel as layout
 from georef.fusion.alignment import Alignment, align
-from georef.fusion.noise import UNIT_BLOCKS, NoiseModel, datasheet_prior, em_step, starting_point
+from georef.fusion.noise import (
+    NHC_BLOCKS,
+    UNIT_BLOCKS,
+    NoiseModel,
+    datasheet_prior,
+    em_step,
+    inflated,
+    starting_point,
+)
 from georef.fusion.solution import GnssUse, NavSolution
 from georef.io.errors import GeorefError
 from georef.kernels import load as load_kernel
@@ -41,12 +49,36 @@ from georef.kernels import load as load_kernel
 REQUIRED_ROLES = ("gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
 #: this many GNSS fixes rejected in a row is a divergence: re-align and restart
 MAX_CONSECUTIVE_REJECTS = 4
+#: process noise over an IMU gap. Across a gap the mechanisation integrates the straight line between the real
+#: samples on either side (the trapezoid rule; a logger's interpolation does the same), so what is unknown is the
+#: vehicle's departure from that line: about jerk * T^2 / 8, for T = 0.5 s and 5 m/s^3 some 0.16 m/s^2, and for
+#: an angular acceleration of 0.5 rad/s^2 some 0.016 rad/s. As white noise over the gap: [m^2/s^3], [rad^2/s]
+GAP_Q_VEL = 0.02
+GAP_Q_ATT = 5e-5
 #: restarts allowed in one pass; after that the remaining fixes are no longer gated into a restart
 MAX_RESTARTS = 10
+#: a GNSS outage longer than this [s], followed by rejected fixes, is re-run with more process noise (the
+#: smoother keeps bridging it) instead of a restart, at most MAX_DRIFT_RERUNS times in a pass; the factor is
+#: the first fix's normalised innovation over DRIFT_TARGET_CHI2 (between 4 and 1e4)
+OUTAGE_S = 3.0
+MAX_DRIFT_RERUNS = 20
+DRIFT_TARGET_CHI2 = 3.0
 #: EM steps at most after the likelihood search; they stop earlier once every block's smoothed residuals match
 #: their modelled covariance to EM_TOLERANCE (the EM ratio (T + U)/N within 1 +- EM_TOLERANCE)
 EM_ITERATIONS = 5
 EM_TOLERANCE = 0.05
+#: when the estimation's first smoothed pass diverges, its process noise is raised tenfold up to this many times
+INFLATE_TRIES = 4
+#: ground-vehicle test (``cfg.vehicle = "auto"``): speed [m/s], median lateral/speed, rms vertical body
+#: velocity [m/s], share of the log moving
+GROUND_MIN_SPEED = 3.0
+GROUND_MAX_SLIP = 0.03
+GROUND_MAX_VERTICAL = 0.3
+GROUND_MIN_MOVING = 0.3
+#: fractions of an EM step tried in turn until one keeps the likelihood
+EM_STEP_FRACTIONS = (1.0, 0.5, 0.25)
+#: an EM step may lower the innovation log-likelihood by at most this much and still be kept
+LOGLIK_TOLERANCE = 0.5
 #: the likelihood search scales the IMU's white noise down to at most this factor of its starting point
 IMU_LEVEL_MIN = 1e-4
 #: its step [decades]
@@ -56,8 +88,9 @@ ESTIMATION_RATE_HZ = 1.0
 #: the estimation passes run on the IMU averaged in blocks down to about this rate [Hz]: the white-noise
 #: densities they fit are the low-frequency level, which block means keep
 ESTIMATION_IMU_RATE_HZ = 10.0
-#: the estimation passes' gate: chi-square(3) 99.999 %, only gross outliers, while the noise is being fitted
-ESTIMATION_GATE = 25.9
+#: the estimation passes' gate: chi-square(3) 1 - 1e-8, only gross outliers while the noise is being fitted; they
+#: neither gate good fixes out nor restart, so that every fix informs the fit
+ESTIMATION_GATE = 40.1
 #: prior sigma of the latency state [s] and of the lever-arm state [m] (plus the given lever arm's size)
 LATENCY_PRIOR_S = 0.2
 LEVER_PRIOR_M = 1.0
@@ -84,6 +117,8 @@ class InsInputs:
     source: str = "IMU"
     mag: np.ndarray | None = None
     autopilot_yaw: np.ndarray | None = None
+    #: IMU gaps as (row before, row after) pairs (:func:`imu_gaps`), filled in by :func:`solve_ins`
+    gaps: list[tuple[int, int]] = field(default_factory=list)
 
 
 @dataclass
@@ -124,6 +159,9 @@ class InsDiagnostics:
     estimation_restarts: int = 0
     imu_noise_factor: float = 1.0
     estimation_passes: int = 0
+    ground_vehicle: bool = False                 # non-holonomic constraints applied
+    imu_gaps: list[tuple[float, float]] = field(default_factory=list)  # [s] spans without real IMU data
+    ground_test: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
 
@@ -152,9 +190,10 @@ class _Pass:
     stats: np.ndarray | None
     restarts: list[Restart]
     rows: tuple | None     # finish_rows outputs (None when not asked for)
-    loglik: np.ndarray     # innovation log-likelihood of the forward pass: GNSS fixes, unit updates
+    loglik: np.ndarray     # innovation log-likelihood of the forward pass: GNSS fixes, unit updates, NHC
     first_state: np.ndarray | None = None   # smoothed nominal state at the first epoch
     last_state: np.ndarray | None = None    # and at the last epoch
+    diverged: bool = False                  # an estimation pass that stopped at a divergence (no restart)
 
 
 def _fix_table(inputs: InsInputs, cfg: ProcessingConfig, start_row: int) -> _Fixes:
@@ -172,6 +211,55 @@ def _fix_sigmas(gnss: GnssEpochs, cfg: ProcessingConfig) -> np.ndarray:
     if gnss.sigma_neu is None:
         return default
     return np.where(np.isfinite(gnss.sigma_neu), gnss.sigma_neu, default)
+
+
+def imu_gap_limit(time: np.ndarray) -> float:
+    """The longest IMU interval [s] the mechanisation bridges (with the process noise of :func:`imu_gaps`):
+    5 s or ten sample periods, whichever is longer. Across a longer gap the filter stops and re-aligns after it."""
+    return max(5.0, 10.0 * float(np.median(np.diff(time))))
+
+
+def imu_gaps(time: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> list[tuple[int, int]]:
+    """Spans without a real IMU measurement, as (row before, row after) pairs: time gaps, and runs of samples
+    that lie exactly on the straight line between their neighbours in all six channels — a logger's linear
+    interpolation over a dropout (the KITTI log has 0.3-0.5 s of them), which no real sensor noise produces.
+    A span counts when the real samples on either side are more than ``max(0.15 s, 5 sample periods)`` apart.
+    """
+    x = np.concatenate([gyro, accel], axis=1)
+    second = np.abs(x[2:] - 2.0 * x[1:-1] + x[:-2])
+    tol = 1e-9 * (1.0 + np.abs(x[1:-1]))
+    dt = np.diff(time)
+    uniform = np.abs(dt[1:] - dt[:-1]) <= 1e-6 * np.maximum(dt[1:], 1e-9)
+    interpolated = np.concatenate([[False], np.all(second <= tol, axis=1) & uniform, [False]])
+    real = np.flatnonzero(~interpolated)
+    limit = max(0.15, 5.0 * float(np.median(dt)))
+    wide = np.flatnonzero(np.diff(time[real]) > limit)
+    return [(int(real[i]), int(real[i + 1])) for i in wide]
+
+
+def _outage_rows(time: np.ndarray, fixes: _Fixes) -> np.ndarray:
+    """Rows inside GNSS outages: after a fix that the next one follows by more than OUTAGE_S, up to that next
+    fix's row (inclusive), and after the last fix to the end of the log when that is more than OUTAGE_S."""
+    rows = np.zeros(len(time), dtype=bool)
+    fix_time = time[fixes.row] - fixes.lag
+    bounds = list(zip(fixes.row[:-1], fixes.row[1:], np.diff(fix_time), strict=True))
+    if len(fixes.row) and time[-1] - fix_time[-1] > OUTAGE_S:
+        bounds.append((fixes.row[-1], len(time) - 1, time[-1] - fix_time[-1]))
+    for a, b, span in bounds:
+        if span > OUTAGE_S:
+            rows[a + 1:b + 1] = True
+    return rows
+
+
+def _gap_scale(time: np.ndarray, gaps: list[tuple[int, int]], noise: NoiseModel) -> np.ndarray:
+    """Per-row process-noise factors (N, 2) on the white specific force and angular rate, and on the bias drives:
+    1, and over IMU gaps the navigation noise raised to the dynamics of a vehicle whose motion is unknown there
+    (GAP_Q_VEL, GAP_Q_ATT). The biases do not change because data are missing: their factor stays 1."""
+    scale = np.ones((len(time), 2))
+    factor = max(GAP_Q_VEL / max(noise.q_vel_h, 1e-30), GAP_Q_ATT / max(noise.q_att_h, 1e-30), 1.0)
+    for a, b in gaps:
+        scale[a + 1:b + 1, 0] = factor
+    return scale
 
 
 def unit_drift_psd(cfg: ProcessingConfig) -> float:
@@ -195,7 +283,8 @@ def initial_alignment(inputs: InsInputs, cfg: ProcessingConfig, start_time: floa
     try:
         result = align(inputs.time, inputs.gyro, inputs.accel, gnss.time, np.radians(gnss.lat_deg),
                        np.radians(gnss.lon_deg), gnss.height, sigma, np.asarray(cfg.lever_arm_gnss), start_time,
-                       bias_g, bias_a)
+                       bias_g, bias_a, gaps=inputs.gaps,
+                       datasheet_bias_sigma=_datasheet_bias_sigma(cfg))
     except ValueError as exc:
         raise GeorefError(f"{inputs.source}: cannot align the INS: {exc}") from None
     if result.observable:
@@ -216,6 +305,13 @@ def initial_alignment(inputs: InsInputs, cfg: ProcessingConfig, start_time: floa
     result.heading_sigma = heading_sigma
     result.heading_source = source
     return result
+
+
+def _datasheet_bias_sigma(cfg: ProcessingConfig) -> tuple[float, float]:
+    """Turn-on plus instability sigmas of the gyro [rad/s] and accelerometer [m/s^2] biases of the preset."""
+    model = cfg.imu_error_model()
+    return (float(np.hypot(model.gyro_turn_on_sigma, model.gyro_markov_sigma)),
+            float(np.hypot(model.accel_turn_on_sigma, model.accel_markov_sigma)))
 
 
 def _other_heading(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignment):
@@ -287,8 +383,11 @@ def _initial_state(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignmen
 # ---- one pass ------------------------------------------------------------------------------------------------
 def _run_pass(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignment, noise: NoiseModel, fixes: _Fixes,
               stride: int, gate: float, calibrate: bool, smooth: bool, want_stats: bool, lever: np.ndarray,
-              latency: float, start_state: np.ndarray | None = None, rows_wanted: bool = True) -> _Pass:
-    """Forward filter over every segment (restarting after divergences), then the smoother if ``smooth``."""
+              latency: float, start_state: np.ndarray | None = None, rows_wanted: bool = True,
+              restart_on_divergence: bool = True, nhc: bool = False) -> _Pass:
+    """Forward filter over every segment (re-aligning and restarting after divergences and IMU gaps), then the
+    smoother if ``smooth``. Without ``restart_on_divergence`` (estimation passes) a divergence ends the pass and
+    marks it ``diverged``: its noise model is not one to keep."""
     kernel = load_kernel("ins")
     t = inputs.time
     n = len(t)
@@ -305,7 +404,7 @@ def _run_pass(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignment, no
     fix_S = np.full((m, 3, 3), np.nan)
     fix_d2 = np.full(m, np.nan)
     epochs: list[tuple] = []
-    units: list[tuple] = []
+    auxes: list[tuple] = []
     restarts: list[Restart] = []
     x0, P0 = _initial_state(inputs, cfg, alignment, noise, calibrate, lever, latency)
     if start_state is not None:
@@ -314,42 +413,86 @@ def _run_pass(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignment, no
         x0 = start_state.copy()
         x0[layout.X_LEVER:layout.X_LEVER + 3] = lever
         x0[layout.X_LATENCY] = latency
-    loglik = np.zeros(2)
+    diverged = False
     start_row = alignment.start_row
     max_rejects = MAX_CONSECUTIVE_REJECTS
+    q_scale = _gap_scale(t, inputs.gaps, noise)
+    outage_rows = _outage_rows(t, fixes)
+    q_scale[outage_rows, :] *= noise.outage_scale
+    drift_reruns = 0
+    last_diverged_fix = -1
+    continuation = False   # the segment continues the previous one from its last kept epoch (a duplicate)
     offset = 0
     while True:
         out = kernel.ekf_forward(t, inputs.gyro, inputs.accel, start_row, x0, P0, fixes.row, fixes.lag, fixes.z,
-                                 fixes.r, noise_vec, stride, gate, max_rejects, unit_rpy, aiding, nav)
-        (ep_row, ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, f_epoch, f_z, f_H, f_S, f_d2, f_status, u_epoch, u_z, u_H,
-         u_status, stop, segment_loglik) = out
-        loglik += segment_loglik
+                                 fixes.r, noise_vec, q_scale, stride, gate, max_rejects, imu_gap_limit(t),
+                                 OUTAGE_S, unit_rpy, aiding, nhc, nav)
+        (ep_row, ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, f_epoch, f_z, f_H, f_S, f_d2, f_status, a_epoch, a_kind, a_z,
+         a_H, a_status, a_r, stop, ep_loglik) = out
+        reason_code = int(stop[2])
         keep = len(ep_row)
-        if stop[2] == layout.STOP_DIVERGED:
-            first = int(stop[1])
+        if reason_code == layout.STOP_DRIFT and drift_reruns >= MAX_DRIFT_RERUNS:
+            reason_code = layout.STOP_DIVERGED
+        if reason_code == layout.STOP_DIVERGED and int(stop[1]) == last_diverged_fix \
+                and drift_reruns < MAX_DRIFT_RERUNS:
+            # the re-aligned filter failed at the same fix again: a second restart would do the same; open up
+            # the process noise up to it instead
+            reason_code = layout.STOP_DRIFT
+        if reason_code == layout.STOP_DIVERGED:
+            last_diverged_fix = int(stop[1])
+        if reason_code == layout.STOP_DIVERGED:
             # restart at the epoch before the one that rejected the first of the run
-            keep = max(int(f_epoch[first]), 1)
-        processed = (f_epoch >= 0) & (f_epoch < keep)
-        fix_epoch[processed] = f_epoch[processed] + offset
-        for target, source in ((fix_status, f_status), (fix_z, f_z), (fix_H, f_H),
-                               (fix_S, f_S), (fix_d2, f_d2)):
+            keep = max(int(f_epoch[int(stop[1])]), 1)
+        elif reason_code == layout.STOP_DRIFT:
+            # go back to the epoch of the last fix before the outage and run the outage again with more
+            # process noise: as much more as the first fix after it asks for
+            first = int(stop[1])
+            before = first - 1
+            keep = int(f_epoch[before]) + 1 if before >= 0 and f_epoch[before] >= 0 else 1
+            r0 = int(ep_row[keep - 1])
+            r1 = int(fixes.row[first])
+            q_scale[r0 + 1:r1 + 1, :] *= float(np.clip(f_d2[first] / DRIFT_TARGET_CHI2, 4.0, 1e4))
+            drift_reruns += 1
+        dup = 1 if continuation else 0
+        kept = slice(dup, keep)
+        processed = (f_epoch >= dup) & (f_epoch < keep)
+        fix_epoch[processed] = f_epoch[processed] - dup + offset
+        for target, source in ((fix_status, f_status), (fix_z, f_z), (fix_H, f_H), (fix_S, f_S), (fix_d2, f_d2)):
             target[processed] = source[processed]
-        later = (f_epoch >= keep)
-        fix_status[later] = layout.FIX_UNUSED
-        unit_keep = u_epoch < keep
-        epochs.append((ep_row[:keep], ep_dT[:keep], ep_Pm[:keep], ep_Pp[:keep], ep_Phi[:keep], ep_dx[:keep]))
-        units.append((u_epoch[unit_keep] + offset, u_z[unit_keep], u_H[unit_keep], u_status[unit_keep]))
-        offset += keep
-        if stop[2] != layout.STOP_DIVERGED:
+        fix_status[f_epoch >= keep] = layout.FIX_UNUSED
+        aux_keep = (a_epoch >= dup) & (a_epoch < keep)
+        epochs.append((ep_row[kept], ep_dT[kept], ep_Pm[kept], ep_Pp[kept], ep_Phi[kept], ep_dx[kept],
+                       ep_loglik[kept], not continuation))
+        auxes.append((a_epoch[aux_keep] - dup + offset, a_kind[aux_keep], a_z[aux_keep], a_H[aux_keep],
+                      a_status[aux_keep], a_r[aux_keep]))
+        offset += keep - dup
+        if reason_code == layout.STOP_END:
             break
-        start_row = int(ep_row[keep - 1])
-        first_fix = fixes.index[int(stop[1])]
-        reason = (f"{MAX_CONSECUTIVE_REJECTS} GNSS fixes in a row rejected from {inputs.gnss.time[first_fix]:.1f} s "
-                  f"(line {int(inputs.gnss.line[first_fix])})")
+        if reason_code == layout.STOP_DRIFT:
+            start_row = int(ep_row[keep - 1])
+            x0 = nav[start_row].copy()
+            P0 = ep_Pp[keep - 1].copy()
+            continuation = True
+            continue
+        continuation = False
+        if reason_code == layout.STOP_DIVERGED and not restart_on_divergence:
+            diverged = True
+            break
+        if reason_code == layout.STOP_GAP:
+            start_row = int(stop[0]) + 1
+            reason = (f"IMU gap of {t[start_row] - t[start_row - 1]:.2f} s before {t[start_row]:.2f} s: re-aligned "
+                      "after it")
+        else:
+            start_row = int(ep_row[keep - 1])
+            first_fix = fixes.index[int(stop[1])]
+            reason = (f"{MAX_CONSECUTIVE_REJECTS} GNSS fixes in a row rejected from "
+                      f"{inputs.gnss.time[first_fix]:.1f} s (line {int(inputs.gnss.line[first_fix])})")
         restarts.append(Restart(row=start_row, time=float(t[start_row]), reason=reason))
         if len(restarts) >= MAX_RESTARTS:
             max_rejects = 0
-        x_prev = nav[start_row].copy()
+        if start_row >= n - 2:
+            break
+        x_prev = nav[start_row].copy() if np.isfinite(nav[start_row, 0]) else nav[start_row - 1].copy()
         try:
             again = initial_alignment(inputs, cfg, start_time=float(t[start_row]),
                                       bias_g=x_prev[layout.X_BG:layout.X_BG + 3],
@@ -372,19 +515,18 @@ def _run_pass(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignment, no
     ep_Pp = np.concatenate([e[3] for e in epochs])
     ep_Phi = np.concatenate([e[4] for e in epochs])
     ep_dx = np.concatenate([e[5] for e in epochs])
+    loglik = np.concatenate([e[6] for e in epochs]).sum(axis=0)
     seg_start = np.zeros(len(ep_row), dtype=bool)
-    seg_start[np.cumsum([0, *[len(e[0]) for e in epochs[:-1]]])] = True
-    u_epoch = np.concatenate([u[0] for u in units])
-    u_z = np.concatenate([u[1] for u in units])
-    u_H = np.concatenate([u[2] for u in units])
-    u_status = np.concatenate([u[3] for u in units])
+    starts = np.cumsum([0, *[len(e[0]) for e in epochs[:-1]]])
+    seg_start[starts[[e[7] for e in epochs]]] = True
+    aux = [np.concatenate([a[i] for a in auxes]) for i in range(6)]
     stats = None
     rows = None
     first_state = last_state = None
     if smooth:
-        err_post, err_pre, stats = kernel.rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, noise_vec,
-                                                       fix_epoch, fix_z, fix_H, fixes.r, fix_status, u_epoch, u_z, u_H,
-                                                       u_status, want_stats)
+        err_post, err_pre, stats = kernel.rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start,
+                                                       outage_rows[ep_row], noise_vec,
+                                                       fix_epoch, fix_z, fix_H, fixes.r, fix_status, *aux, want_stats)
         first_state = kernel.corrected(nav[ep_row[0]], err_post[0])
         last_state = kernel.corrected(nav[ep_row[-1]], err_post[-1])
         if rows_wanted:
@@ -394,7 +536,7 @@ def _run_pass(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignment, no
         rows = kernel.finish_rows(t, nav, ep_row, zeros, zeros, ep_Pp, ep_Pm)
     return _Pass(nav=nav, ep_row=ep_row, ep_Pp=ep_Pp, ep_Pm=ep_Pm, seg_start=seg_start, fix_status=fix_status,
                  fix_z=fix_z, fix_S=fix_S, fix_d2=fix_d2, stats=stats if want_stats else None, restarts=restarts,
-                 rows=rows, loglik=loglik, first_state=first_state, last_state=last_state)
+                 rows=rows, loglik=loglik, first_state=first_state, last_state=last_state, diverged=diverged)
 
 
 def _calibration(run: _Pass) -> Calibration:
@@ -420,9 +562,11 @@ def _decimated(inputs: InsInputs, start_row: int, factor: int) -> tuple[InsInput
         cum = np.concatenate([np.zeros((1, values.shape[1])), np.cumsum(values, axis=0)])
         return (cum[hi] - cum[lo]) / (hi - lo)[:, None]
 
+    gaps = [(int(np.searchsorted(centres, a, side="right")) - 1, int(np.searchsorted(centres, b)))
+            for a, b in inputs.gaps]
     decimated = InsInputs(time=inputs.time[centres], gyro=block_mean(inputs.gyro), accel=block_mean(inputs.accel),
                           gnss=inputs.gnss, unit_rpy=None if inputs.unit_rpy is None else inputs.unit_rpy[centres],
-                          source=inputs.source)
+                          source=inputs.source, gaps=[(max(a, 0), b) for a, b in gaps if b > a])
     return decimated, int(np.searchsorted(centres, start_row))
 
 
@@ -447,34 +591,33 @@ class _Estimation:
         self.restarts = 0
         self.passes = 0
         self.imu_factor = 1.0
+        self.nhc = cfg.vehicle == "ground"
+        self.ground_test: dict[str, float] = {}
 
-    def _pass(self, noise: NoiseModel, smooth: bool, calibrate: bool = False) -> _Pass:
+    def _pass(self, noise: NoiseModel, smooth: bool, calibrate: bool = False, rows: bool = False) -> _Pass:
         self.passes += 1
         run = _run_pass(self.inputs, self.cfg, self.alignment, noise, self.fixes, self.stride, ESTIMATION_GATE,
                         calibrate=calibrate, smooth=smooth, want_stats=smooth, lever=self.lever, latency=self.latency,
-                        start_state=self.start_state, rows_wanted=False)
+                        start_state=self.start_state, rows_wanted=rows, restart_on_divergence=False, nhc=self.nhc)
         self.restarts = len(run.restarts)
         return run
 
-    def _em(self, noise: NoiseModel, calibrate: bool = False) -> tuple[NoiseModel, float]:
-        """One accelerated EM step; returns the new model and the largest inconsistency of a block before the
-        step, ``|(T + U)/N - 1|`` (0 when the smoothed residuals match their modelled covariance)."""
-        run = self._pass(noise, smooth=True, calibrate=calibrate)
-        self.start_state = run.first_state
-        if calibrate:
-            self.calibration = _calibration(run)
-        new, ratios = em_step(noise, self.prior, run.stats, self.blocks)
-        self.ratios.append(ratios)
-        return new, max(abs(r - 1.0) for r in ratios.values())
+    def _smoothed(self, noise: NoiseModel, calibrate: bool = False, rows: bool = False) -> _Pass:
+        run = self._pass(noise, smooth=True, calibrate=calibrate, rows=rows)
+        if not run.diverged:
+            self.start_state = run.first_state
+            if calibrate:
+                self.calibration = _calibration(run)
+        return run
 
     def _imu_level(self, noise: NoiseModel) -> NoiseModel:
         """Scale all four white-noise densities of the IMU by the factor that maximises the forward innovation
         likelihood: down from 1 a decade at a time while it improves, then the vertex of a parabola through the
         best three (in log factor). EM-type steps alone crawl along this direction when the start is far too
-        large."""
+        large. A pass that diverges scores minus infinity."""
         def loglik(factor: float) -> float:
             run = self._pass(_scale_imu(noise, factor), smooth=False)
-            return float(run.loglik.sum())
+            return -np.inf if run.diverged else float(run.loglik.sum())
 
         logs = [0.0]
         values = [loglik(1.0)]
@@ -485,7 +628,7 @@ class _Estimation:
                 break
         k = int(np.argmax(values))
         best = logs[k]
-        if 0 < k < len(logs) - 1:
+        if 0 < k < len(logs) - 1 and np.all(np.isfinite(values[k - 1:k + 2])):
             # vertex of the parabola through the three points around the maximum (equal spacing in log factor)
             a, b, c = values[k - 1], values[k], values[k + 1]
             curvature = a - 2.0 * b + c
@@ -496,14 +639,71 @@ class _Estimation:
         return _scale_imu(noise, factor)
 
     def run(self, start: NoiseModel) -> NoiseModel:
+        """Likelihood search for the IMU level, then accelerated EM steps, each kept only when its pass does not
+        diverge and its innovation likelihood does not drop; otherwise the step is shortened (in log scale) until
+        it is: EM's monotonicity, restored for the accelerated steps (compare Varadhan & Roland 2008, "Simple
+        and globally convergent methods for accelerating the convergence of any EM algorithm", Scand. J. Stat.
+        35)."""
         noise = self._imu_level(start)
-        for _ in range(EM_ITERATIONS):
-            noise, inconsistency = self._em(noise)
-            if inconsistency < EM_TOLERANCE:
+        run = self._smoothed(noise, rows=self.cfg.vehicle == "auto")
+        for _ in range(INFLATE_TRIES):
+            if not run.diverged:
                 break
-        # a last step with the lever arm and latency as states: what the data say about them
-        noise, _ = self._em(noise, calibrate=True)
+            # even the starting point is too tight for these data: open it up until the filter holds
+            noise = inflated(noise, 10.0)
+            run = self._smoothed(noise, rows=self.cfg.vehicle == "auto")
+        if run.diverged:
+            return noise
+        if self.cfg.vehicle == "auto":
+            self.ground_test = _ground_vehicle_test(run)
+            if self.ground_test["ground"]:
+                self.nhc = True
+                run = self._smoothed(noise)
+        if self.nhc:
+            self.blocks = (*self.blocks, layout.B_NHC)
+        for _ in range(EM_ITERATIONS):
+            step, ratios = em_step(noise, self.prior, run.stats, self.blocks)
+            accepted = False
+            for fraction in EM_STEP_FRACTIONS:
+                candidate = _partial_step(noise, step, self.blocks, fraction)
+                trial = self._smoothed(candidate)
+                if not trial.diverged and trial.loglik.sum() >= run.loglik.sum() - LOGLIK_TOLERANCE:
+                    noise, run, accepted = candidate, trial, True
+                    self.ratios.append(ratios)
+                    break
+            if not accepted or max(abs(r - 1.0) for r in ratios.values()) < EM_TOLERANCE:
+                break
+        # a last pass with the lever arm and latency as states: what the data say about them
+        self._smoothed(noise, calibrate=True)
         return noise
+
+
+def _ground_vehicle_test(run: _Pass) -> dict[str, float]:
+    """Does the smoothed motion look like a ground vehicle's? While moving faster than GROUND_MIN_SPEED, the
+    body's lateral velocity must stay under GROUND_MAX_SLIP of the speed (median) and its vertical velocity under
+    GROUND_MAX_VERTICAL (rms), for at least GROUND_MIN_MOVING of the log. An aircraft's crab or angle of attack, a
+    multicopter flying sideways fail it; a car passes it."""
+    from georef.frames import euler_to_dcm
+
+    valid, _, _, _, angles, _, _ = run.rows
+    v_n = run.nav[:, layout.X_VEL:layout.X_VEL + 3]
+    speed = np.hypot(v_n[:, 0], v_n[:, 1])
+    moving = valid & (speed > GROUND_MIN_SPEED)
+    share = float(moving.sum()) / max(int(valid.sum()), 1)
+    if moving.sum() < 10:
+        return {"ground": False, "moving_share": share, "slip": np.nan, "vertical_rms": np.nan}
+    C = euler_to_dcm(angles[moving, 0], angles[moving, 1], angles[moving, 2])
+    v_b = np.einsum("nji,nj->ni", C, v_n[moving])
+    slip = float(np.median(np.abs(v_b[:, 1]) / speed[moving]))
+    vertical = float(np.sqrt(np.mean(v_b[:, 2] ** 2)))
+    ground = share >= GROUND_MIN_MOVING and slip < GROUND_MAX_SLIP and vertical < GROUND_MAX_VERTICAL
+    return {"ground": bool(ground), "moving_share": share, "slip": slip, "vertical_rms": vertical}
+
+
+def _partial_step(noise: NoiseModel, step: NoiseModel, blocks: tuple[int, ...], fraction: float) -> NoiseModel:
+    """``noise`` moved by ``fraction`` of the way to ``step``, block by block, in log scale."""
+    return noise.with_blocks({b: noise.block_value(b) * (step.block_value(b) / noise.block_value(b)) ** fraction
+                              for b in blocks})
 
 
 def _scale_imu(noise: NoiseModel, factor: float) -> NoiseModel:
@@ -517,6 +717,7 @@ def solve_ins(inputs: InsInputs, cfg: ProcessingConfig, smooth: bool = True) -> 
     if len(t) < 10 or np.any(np.diff(t) <= 0):
         raise GeorefError(f"{inputs.source}: IMU times must increase strictly")
     inputs.time = t
+    inputs.gaps = imu_gaps(t, inputs.gyro, inputs.accel)
     gnss = inputs.gnss
     if np.count_nonzero((gnss.time >= t[0]) & (gnss.time <= t[-1])) < 6:
         raise GeorefError(f"{inputs.source}: the full-state filter needs at least six GNSS fixes inside the IMU span "
@@ -527,7 +728,7 @@ def solve_ins(inputs: InsInputs, cfg: ProcessingConfig, smooth: bool = True) -> 
     lever = np.asarray(cfg.lever_arm_gnss, dtype=float)
     prior = noise_prior(cfg)
     aiding = bool(cfg.unit_aiding and inputs.unit_rpy is not None)
-    blocks = tuple(b for b in range(layout.N_BLOCKS) if aiding or b not in UNIT_BLOCKS)
+    blocks = tuple(b for b in range(layout.N_BLOCKS) if (aiding or b not in UNIT_BLOCKS) and b not in NHC_BLOCKS)
     given_latency = cfg.gnss_latency
     estimation = _Estimation(inputs, cfg, alignment, prior, blocks, lever, given_latency or 0.0)
     noise = estimation.run(starting_point(prior, t, inputs.gyro, inputs.accel))
@@ -538,7 +739,8 @@ def solve_ins(inputs: InsInputs, cfg: ProcessingConfig, smooth: bool = True) -> 
         latency = calibration.latency
     stride = max(1, int(round(rate / cfg.covariance_rate)))
     final = _run_pass(inputs, cfg, alignment, noise, fixes, stride, cfg.gate_chi2, calibrate=False, smooth=smooth,
-                      want_stats=False, lever=lever, latency=latency, start_state=estimation.start_state)
+                      want_stats=False, lever=lever, latency=latency, start_state=estimation.start_state,
+                      nhc=estimation.nhc)
     valid, pos_var, vel_var, att_cov, angles, att_sigma, epoch_sigma = final.rows
     states = final.nav
     start_row = alignment.start_row
@@ -562,7 +764,8 @@ def solve_ins(inputs: InsInputs, cfg: ProcessingConfig, smooth: bool = True) -> 
         em_ratios=estimation.ratios, restarts=final.restarts, calibration=calibration, lever_arm_given=lever,
         latency_applied=latency, gate_chi2=cfg.gate_chi2, nis=full_nis, unit_aiding=aiding,
         estimation_restarts=estimation.restarts, imu_noise_factor=estimation.imu_factor,
-        estimation_passes=estimation.passes)
+        estimation_passes=estimation.passes, ground_vehicle=estimation.nhc, ground_test=estimation.ground_test,
+        imu_gaps=[(float(t[a]), float(t[b])) for a, b in inputs.gaps])
     info = {"vel_var_n": vel_var, "gyro_bias": states[:, layout.X_BG:layout.X_BG + 3],
             "accel_bias": states[:, layout.X_BA:layout.X_BA + 3], "unit_yaw_origin": states[:, layout.X_UNIT_YAW],
             "epoch_rows": final.ep_row, "epoch_sigma": epoch_sigma, "start_row": start_row,

@@ -92,7 +92,8 @@ R_UNIT_LEVEL = 11  # rad^2, white noise of the unit's roll and pitch
 R_UNIT_YAW = 12    # rad^2, of its yaw
 R_SCALE_H = 13     # factor on the GNSS north/east variances
 R_SCALE_V = 14     # factor on the GNSS down variance
-N_NOISE = 15
+R_NHC = 15         # m^2/s^2, non-holonomic constraint: variance of the body's lateral and vertical velocity
+N_NOISE = 16
 
 # ---- noise blocks whose EM statistics the smoother adds up ------------------------------------------------
 B_GNSS_H = 0
@@ -107,7 +108,17 @@ B_BG = 8
 B_BA = 9
 B_UNIT_LEVEL = 10
 B_UNIT_DRIFT = 11
-N_BLOCKS = 12
+B_NHC = 12
+B_OUTAGE = 13      # all process noise inside GNSS outages, pooled (a scale on top of the other blocks)
+N_BLOCKS = 14
+
+# ---- kinds of the auxiliary (non-GNSS) updates ------------------------------------------------------------
+AUX_UNIT = 0       # the unit's roll, pitch, yaw (3)
+AUX_NHC = 1        # a ground vehicle's zero lateral and vertical body velocity (2)
+#: how far from the IMU the point is at which a ground vehicle has no lateral or vertical velocity [m]
+NHC_LEVER = 2.0
+#: chi-square(2) gate of the NHC update (1 - 1e-20)
+NHC_GATE = 92.1
 
 # ---- GNSS fix status and why a forward pass stopped -------------------------------------------------------
 FIX_UNUSED = -1
@@ -115,22 +126,29 @@ FIX_REJECTED = 0
 FIX_USED = 1
 STOP_END = 0
 STOP_DIVERGED = 1
+STOP_GAP = 2
+STOP_DRIFT = 3
+#: rejected fixes in a row, starting within DRIFT_WINDOW fixes after a GNSS outage or an IMU gap, that stop a
+#: pass with STOP_DRIFT
+DRIFT_REJECTS = 2
+DRIFT_WINDOW = 5
 
 
 @njit(cache=True)
-def continuous_noise(noise: np.ndarray, nx: int) -> np.ndarray:
-    """Diagonal of the continuous-time process-noise density (nx,) from the noise vector."""
+def continuous_noise(noise: np.ndarray, nx: int, nav_scale: float, bias_scale: float) -> np.ndarray:
+    """Diagonal of the continuous-time process-noise density (nx,) from the noise vector; the white specific
+    force and angular rate scaled by ``nav_scale``, the bias and unit-error drives by ``bias_scale``."""
     q = np.zeros(nx)
     for i in range(2):
-        q[VEL + i] = noise[Q_VEL_H]
-        q[ATT + i] = noise[Q_ATT_H]
-        q[UNIT_LEVEL + i] = noise[Q_UNIT_LEVEL]
-    q[VEL + 2] = noise[Q_VEL_V]
-    q[ATT + 2] = noise[Q_ATT_V]
+        q[VEL + i] = noise[Q_VEL_H] * nav_scale
+        q[ATT + i] = noise[Q_ATT_H] * nav_scale
+        q[UNIT_LEVEL + i] = noise[Q_UNIT_LEVEL] * bias_scale
+    q[VEL + 2] = noise[Q_VEL_V] * nav_scale
+    q[ATT + 2] = noise[Q_ATT_V] * nav_scale
     for i in range(3):
-        q[BG + i] = noise[Q_BG]
-        q[BA + i] = noise[Q_BA]
-    q[UNIT_DRIFT] = noise[Q_UNIT_DRIFT]
+        q[BG + i] = noise[Q_BG] * bias_scale
+        q[BA + i] = noise[Q_BA] * bias_scale
+    q[UNIT_DRIFT] = noise[Q_UNIT_DRIFT] * bias_scale
     return q
 
 
@@ -262,10 +280,11 @@ def corrected(x: np.ndarray, dx: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def propagate(P: np.ndarray, x_epoch: np.ndarray, C_mean: np.ndarray, f_mean: np.ndarray, noise: np.ndarray,
-              dT: float, F: np.ndarray, Phi: np.ndarray, Qd: np.ndarray) -> np.ndarray:
-    """Covariance propagation over one epoch interval ``dT`` [s]; fills F, Φ and Q_d, returns P⁻."""
+              dT: float, q_scale: np.ndarray, F: np.ndarray, Phi: np.ndarray, Qd: np.ndarray) -> np.ndarray:
+    """Covariance propagation over one epoch interval ``dT`` [s] with the process noise scaled by ``q_scale`` =
+    (navigation white noise factor, bias drive factor); fills F, Φ and Q_d, returns P⁻."""
     system_matrix(x_epoch, C_mean, f_mean, noise, F)
-    discretise(F, continuous_noise(noise, P.shape[0]), dT, Phi, Qd)
+    discretise(F, continuous_noise(noise, P.shape[0], q_scale[0], q_scale[1]), dT, Phi, Qd)
     return Phi @ P @ Phi.T + Qd
 
 
@@ -322,6 +341,32 @@ def gnss_innovation(x: np.ndarray, C: np.ndarray, fix: np.ndarray, lag: float, n
 
 
 @njit(cache=True)
+def nhc_innovation(x: np.ndarray, C: np.ndarray, nx: int):
+    """Non-holonomic constraint of a ground vehicle: the body's lateral and vertical velocity [m/s] are zero.
+
+    Returns the innovation (the predicted body y and z velocity; the third entry is 0 and unused) and its H
+    (3, nx; the third row zero): ``v_b = C_n_b v_n`` and, with ``Ĉ_b_n = (I - [φ x]) C_b_n``,
+    ``∂v_b/∂φ = -C_n_b [v_n x]``, ``∂v_b/∂δv = C_n_b``.
+    """
+    v = x[X_VEL:X_VEL + 3]
+    z = np.zeros(3)
+    H = np.zeros((3, nx))
+    for i in range(2):
+        row = i + 1
+        z[i] = C[0, row] * v[0] + C[1, row] * v[1] + C[2, row] * v[2]
+        # row of C_n_b = column of C_b_n
+        c0, c1, c2 = C[0, row], C[1, row], C[2, row]
+        H[i, VEL] = c0
+        H[i, VEL + 1] = c1
+        H[i, VEL + 2] = c2
+        # -cᵀ[v x] with c the row of C_n_b
+        H[i, ATT] = c2 * v[1] - c1 * v[2]
+        H[i, ATT + 1] = c0 * v[2] - c2 * v[0]
+        H[i, ATT + 2] = c1 * v[0] - c0 * v[1]
+    return z, H
+
+
+@njit(cache=True)
 def kalman_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, z: np.ndarray, S_inv: np.ndarray, C: np.ndarray,
                   dx_total: np.ndarray) -> np.ndarray:
     """Kalman update with the inverse innovation covariance ``S_inv``, fed back into ``x``; returns the new P.
@@ -348,23 +393,30 @@ def innovation_covariance(P: np.ndarray, H: np.ndarray, r: np.ndarray) -> np.nda
 
 
 @njit(cache=True)
-def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fix, noise, stride, gate_chi2,
-                max_rejects, unit_rpy, unit_aiding, nav):
+def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fix, noise, q_scale, stride,
+                gate_chi2, max_rejects, max_gap, outage_s, unit_rpy, unit_aiding, nhc, nav):
     """One segment of the forward error-state EKF, from ``start_row`` until the end or a divergence.
 
     Inputs: row times ``t`` (N,) s; ``gyro`` rad/s and ``accel`` m/s^2 (N, 3) body frame; the start row, its
     nominal state ``x0`` (NS,) and covariance ``P0`` (nx, nx) with nx = NX_NAV or NX_CAL; per GNSS fix: the row
     at or after it ``fix_row``, ``fix_lag`` = t[row] - t_fix [s], antenna ``z_fix`` (lat, lon [rad], h [m]) and
-    NED variances ``r_fix`` [m^2] (before the R_SCALE factors); the noise vector (N_NOISE,); covariance epochs
-    every ``stride`` rows; the chi-square gate; ``max_rejects`` consecutive rejected fixes stop the segment
-    (0: never). With ``unit_aiding`` the unit's roll, pitch, yaw ``unit_rpy`` (N, 3) [rad] are fused at every
-    GNSS epoch and at least once a second. The nominal state of every row is written into ``nav`` (N, NS).
+    NED variances ``r_fix`` [m^2] (before the R_SCALE factors); the noise vector (N_NOISE,); factors on the
+    process noise of the interval ending at each row ``q_scale`` (N, 2): on the white specific force and angular
+    rate, and on the bias and unit-error drives; covariance epochs every ``stride`` rows;
+    the chi-square gate; ``max_rejects`` consecutive rejected fixes stop the segment (0: never), and so do
+    DRIFT_REJECTS of them starting within DRIFT_WINDOW fixes after a GNSS outage longer than ``outage_s`` [s] or
+    an IMU gap (STOP_DRIFT: the inertial drift over the outage or gap exceeded the model, not a divergence); an IMU gap longer than ``max_gap`` [s] stops it
+    at the row before the gap (STOP_GAP). With
+    ``unit_aiding`` the unit's roll, pitch, yaw ``unit_rpy`` (N, 3) [rad] are fused at every GNSS epoch and at
+    least once a second; with ``nhc`` the non-holonomic constraint of a ground vehicle at every covariance epoch.
+    The nominal state of every row is written into ``nav`` (N, NS).
 
     Returns per covariance epoch: row, interval [s], P⁻, P⁺, Φ, the feedback correction; per fix: epoch,
     innovation relative to the epoch's pre-update error, H, innovation covariance, normalised innovation
-    squared, status; per unit update: epoch, innovation, H, status; ``stop`` = (last row, first fix of the
-    rejected run, STOP_END or STOP_DIVERGED); and the innovation log-likelihood of the used GNSS fixes and of
-    the used unit updates (2,).
+    squared, status; per auxiliary update (unit attitude, NHC): epoch, kind, innovation, H, status, the
+    measurement variances used; ``stop`` =
+    (last row, first fix of the rejected run, STOP_END, STOP_DIVERGED, STOP_GAP or STOP_DRIFT); and per epoch
+    the innovation log-likelihood of its GNSS fixes, unit and NHC updates, rejected ones included (E, 3).
     """
     n = t.shape[0]
     m = fix_row.shape[0]
@@ -382,14 +434,17 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
     fix_S = np.full((m, 3, 3), np.nan)
     fix_d2 = np.full(m, np.nan)
     fix_status = np.full(m, FIX_UNUSED, dtype=np.int64)
-    unit_epoch = np.zeros(max_epochs, dtype=np.int64)
-    unit_z = np.zeros((max_epochs, 3))
-    unit_H = np.zeros((max_epochs, 3, nx))
-    unit_status = np.zeros(max_epochs, dtype=np.int64)
-    n_unit = 0
+    aux_epoch = np.zeros(2 * max_epochs, dtype=np.int64)
+    aux_kind = np.zeros(2 * max_epochs, dtype=np.int64)
+    aux_z = np.zeros((2 * max_epochs, 3))
+    aux_H = np.zeros((2 * max_epochs, 3, nx))
+    aux_status = np.zeros(2 * max_epochs, dtype=np.int64)
+    aux_r = np.zeros((2 * max_epochs, 3))
+    n_aux = 0
     stop = np.array([n - 1, -1, STOP_END], dtype=np.int64)
-    # innovation log-likelihood of the used GNSS fixes and unit updates: -1/2 sum(log det S + zᵀS⁻¹z + 3 log 2π)
-    loglik = np.zeros(2)
+    # innovation log-likelihood of the GNSS fixes, unit and NHC updates at each epoch:
+    # -1/2 sum(log det S + zᵀS⁻¹z + m log 2π)
+    ep_loglik = np.zeros((max_epochs, 3))
 
     x = x0.copy()
     P = P0.copy()
@@ -416,14 +471,37 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
         k_fix += 1
     rejects = 0
     first_rejected = -1
+    after_outage = False
+    gap_since_fix = False   # an IMU gap (raised navigation noise) since the last fix
+    fixes_since_outage = DRIFT_WINDOW  # fixes processed since the last GNSS outage or IMU gap
+    t_last_fix = t[start_row]
+    if k_fix > 0:
+        t_last_fix = t[fix_row[k_fix - 1]] - fix_lag[k_fix - 1]
     t_unit = t[start_row]
     r_unit = np.array([noise[R_UNIT_LEVEL], noise[R_UNIT_LEVEL], noise[R_UNIT_YAW]])
     r_scale = np.array([noise[R_SCALE_H], noise[R_SCALE_H], noise[R_SCALE_V]])
+    r_nhc = np.array([noise[R_NHC], noise[R_NHC], 1.0])
     F = np.zeros((nx, nx))
     Phi = np.zeros((nx, nx))
     Qd = np.zeros((nx, nx))
     for k in range(start_row + 1, n):
         dt = t[k] - t[k - 1]
+        if dt > max_gap:
+            # no IMU data across the gap: close the epoch at the row before it and stop
+            if count > 0:
+                P = propagate(P, x_epoch, C_sum / count, f_sum / count, noise, t[k - 1] - t_epoch, q_scale[k - 1],
+                              F, Phi, Qd)
+                ep_row[n_ep] = k - 1
+                ep_dT[n_ep] = t[k - 1] - t_epoch
+                ep_Pm[n_ep] = P
+                ep_Pp[n_ep] = P
+                ep_Phi[n_ep] = Phi
+                n_ep += 1
+            stop[0] = k - 1
+            stop[2] = STOP_GAP
+            break
+        if q_scale[k, 0] > 1.0:
+            gap_since_fix = True
         increments(gyro[k - 1], gyro[k], accel[k - 1], accel[k], dt, x, dtheta, dvel)
         if k == start_row + 1:
             dtheta_prev[:] = dtheta
@@ -443,29 +521,62 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
         count += 1
         has_fix = k_fix < m and fix_row[k_fix] == k
         if count >= stride or has_fix or k == n - 1:
-            P = propagate(P, x_epoch, C_sum / count, f_sum / count, noise, t[k] - t_epoch, F, Phi, Qd)
+            P = propagate(P, x_epoch, C_sum / count, f_sum / count, noise, t[k] - t_epoch, q_scale[k], F, Phi, Qd)
             ep_row[n_ep] = k
             ep_dT[n_ep] = t[k] - t_epoch
             ep_Pm[n_ep] = P
             ep_Phi[n_ep] = Phi
             dx_total = np.zeros(nx)
+            if nhc:
+                z, H = nhc_innovation(x, C, nx)
+                # the constraint holds at the rear axle, up to NHC_LEVER from the IMU: the body's rotation moves
+                # the IMU sideways (yaw rate) and up and down (pitch rate) by that much more
+                r_turn = r_nhc.copy()
+                r_turn[0] += (NHC_LEVER * (gyro[k, 2] - x[X_BG + 2])) ** 2
+                r_turn[1] += (NHC_LEVER * (gyro[k, 1] - x[X_BG + 1])) ** 2
+                S = innovation_covariance(P, H, r_turn)
+                S2 = S[:2, :2]
+                S2_inv = np.linalg.inv(S2)
+                d2 = z[:2] @ S2_inv @ z[:2]
+                ep_loglik[n_ep, 2] -= 0.5 * (math.log(np.linalg.det(S2)) + d2 + 2.0 * math.log(2.0 * math.pi))
+                aux_epoch[n_aux] = n_ep
+                aux_kind[n_aux] = AUX_NHC
+                aux_z[n_aux] = z + H @ dx_total
+                aux_H[n_aux] = H
+                S_inv = np.zeros((3, 3))
+                S_inv[:2, :2] = S2_inv
+                # a ground vehicle's constraint is gated only against gross violations (a skid): gating it like a
+                # fix would drop it exactly when the heading drifts and it carries the most information
+                if d2 <= NHC_GATE:
+                    aux_status[n_aux] = FIX_USED
+                    P = kalman_update(x, P, H, z, S_inv, C, dx_total)
+                else:
+                    aux_status[n_aux] = FIX_REJECTED
+                aux_r[n_aux] = r_turn
+                n_aux += 1
             if unit_aiding and (has_fix or t[k] - t_unit >= 1.0):
                 t_unit = t[k]
                 z, H = unit_attitude_innovation(x, C, unit_rpy[k], nx)
                 S = innovation_covariance(P, H, r_unit)
                 S_inv = np.linalg.inv(S)
-                unit_epoch[n_unit] = n_ep
-                unit_z[n_unit] = z + H @ dx_total
-                unit_H[n_unit] = H
                 d2 = z @ S_inv @ z
+                # every processed update counts, gated or not: a filter that gates its data out must not look good
+                ep_loglik[n_ep, 1] -= 0.5 * (math.log(np.linalg.det(S)) + d2 + 3.0 * math.log(2.0 * math.pi))
+                aux_epoch[n_aux] = n_ep
+                aux_kind[n_aux] = AUX_UNIT
+                aux_z[n_aux] = z + H @ dx_total
+                aux_H[n_aux] = H
                 if d2 <= gate_chi2:
-                    unit_status[n_unit] = FIX_USED
-                    loglik[1] -= 0.5 * (math.log(np.linalg.det(S)) + d2 + 3.0 * math.log(2.0 * math.pi))
+                    aux_status[n_aux] = FIX_USED
                     P = kalman_update(x, P, H, z, S_inv, C, dx_total)
                 else:
-                    unit_status[n_unit] = FIX_REJECTED
-                n_unit += 1
+                    aux_status[n_aux] = FIX_REJECTED
+                aux_r[n_aux] = r_unit
+                n_aux += 1
             while k_fix < m and fix_row[k_fix] == k:
+                t_fix = t[k] - fix_lag[k_fix]
+                if t_fix - t_last_fix > outage_s or gap_since_fix:
+                    fixes_since_outage = 0
                 z, H = gnss_innovation(x, C, z_fix[k_fix], fix_lag[k_fix], nx)
                 r = r_fix[k_fix] * r_scale
                 S = innovation_covariance(P, H, r)
@@ -476,16 +587,20 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
                 fix_H[k_fix] = H
                 fix_S[k_fix] = S
                 fix_d2[k_fix] = d2
+                ep_loglik[n_ep, 0] -= 0.5 * (math.log(np.linalg.det(S)) + d2 + 3.0 * math.log(2.0 * math.pi))
                 if d2 <= gate_chi2:
                     fix_status[k_fix] = FIX_USED
-                    loglik[0] -= 0.5 * (math.log(np.linalg.det(S)) + d2 + 3.0 * math.log(2.0 * math.pi))
                     rejects = 0
                     P = kalman_update(x, P, H, z, S_inv, C, dx_total)
                 else:
                     fix_status[k_fix] = FIX_REJECTED
                     if rejects == 0:
                         first_rejected = k_fix
+                        after_outage = fixes_since_outage < DRIFT_WINDOW
                     rejects += 1
+                fixes_since_outage += 1
+                t_last_fix = t_fix
+                gap_since_fix = False
                 k_fix += 1
             P = 0.5 * (P + P.T)
             ep_Pp[n_ep] = P
@@ -497,6 +612,11 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
             x_epoch[:] = x
             t_epoch = t[k]
             nav[k] = x
+            if max_rejects > 0 and after_outage and rejects >= DRIFT_REJECTS:
+                stop[0] = k
+                stop[1] = first_rejected
+                stop[2] = STOP_DRIFT
+                break
             if max_rejects > 0 and rejects >= max_rejects:
                 stop[0] = k
                 stop[1] = first_rejected
@@ -505,8 +625,8 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
         else:
             nav[k] = x
     return (ep_row[:n_ep], ep_dT[:n_ep], ep_Pm[:n_ep], ep_Pp[:n_ep], ep_Phi[:n_ep], ep_dx[:n_ep], fix_epoch,
-            fix_z, fix_H, fix_S, fix_d2, fix_status, unit_epoch[:n_unit], unit_z[:n_unit], unit_H[:n_unit],
-            unit_status[:n_unit], stop, loglik)
+            fix_z, fix_H, fix_S, fix_d2, fix_status, aux_epoch[:n_aux], aux_kind[:n_aux], aux_z[:n_aux],
+            aux_H[:n_aux], aux_status[:n_aux], aux_r[:n_aux], stop, ep_loglik[:n_ep])
 
 
 @njit(cache=True)
@@ -541,11 +661,13 @@ def _measurement_statistic(e: np.ndarray, cov: np.ndarray, r: np.ndarray, lo: in
 
 
 @njit(cache=True)
-def rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, noise, fix_epoch, fix_z, fix_H, r_fix, fix_status,
-                 unit_epoch, unit_z, unit_H, unit_status, want_stats):
+def rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, ep_outage, noise, fix_epoch, fix_z, fix_H, r_fix,
+                 fix_status, aux_epoch, aux_kind, aux_z, aux_H, aux_status, aux_r, want_stats):
     """RTS smoother over the covariance epochs of the closed-loop filter, segment by segment, in place.
 
-    ``seg_start[j]`` marks an epoch where the filter was restarted: no information crosses it. Returns per
+    ``seg_start[j]`` marks an epoch where the filter was restarted: no information crosses it; the process noise
+    of the interval ending at an epoch with ``ep_outage[j]`` (inside a GNSS outage) counts towards B_OUTAGE, all
+    blocks pooled, instead of its own blocks. Returns per
     epoch the smoothed error of the post-update nominal (E, nx) and of the pre-update nominal (E, nx);
     ``ep_Pp`` then holds the smoothed covariances. With ``want_stats``, also the EM statistics (N_BLOCKS, 3):
     per noise block the sum of squared normalised smoothed residuals, the sum of the normalised posterior
@@ -584,7 +706,7 @@ def rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, noise, fix_epoch
             PhiLt = Phi @ L.T
             cov_w = P_next + Phi @ P_s @ Phi.T - PhiLt - PhiLt.T
             for b in range(len(blocks)):
-                _block_statistic(w, cov_w, Qd, blocks[b], stats, block_ids[b])
+                _block_statistic(w, cov_w, Qd, blocks[b], stats, B_OUTAGE if ep_outage[j + 1] else block_ids[b])
         ep_Pp[j] = P_s
     if want_stats:
         r_scale = np.array([noise[R_SCALE_H], noise[R_SCALE_H], noise[R_SCALE_V]])
@@ -598,16 +720,18 @@ def rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, noise, fix_epoch
             r = r_fix[k] * r_scale
             _measurement_statistic(e, cov, r, 0, 2, stats, B_GNSS_H)
             _measurement_statistic(e, cov, r, 2, 3, stats, B_GNSS_V)
-        r_unit = np.array([noise[R_UNIT_LEVEL], noise[R_UNIT_LEVEL], noise[R_UNIT_YAW]])
-        for k in range(unit_epoch.shape[0]):
-            if unit_status[k] != FIX_USED:
+        for k in range(aux_epoch.shape[0]):
+            if aux_status[k] != FIX_USED:
                 continue
-            j = unit_epoch[k]
-            H = unit_H[k]
-            e = unit_z[k] - H @ err_pre[j]
+            j = aux_epoch[k]
+            H = aux_H[k]
+            e = aux_z[k] - H @ err_pre[j]
             cov = H @ ep_Pp[j] @ H.T
-            _measurement_statistic(e, cov, r_unit, 0, 2, stats, B_UNIT_R_LEVEL)
-            _measurement_statistic(e, cov, r_unit, 2, 3, stats, B_UNIT_R_YAW)
+            if aux_kind[k] == AUX_UNIT:
+                _measurement_statistic(e, cov, aux_r[k], 0, 2, stats, B_UNIT_R_LEVEL)
+                _measurement_statistic(e, cov, aux_r[k], 2, 3, stats, B_UNIT_R_YAW)
+            else:
+                _measurement_statistic(e, cov, aux_r[k], 0, 2, stats, B_NHC)
     return err_post, err_pre, stats
 
 

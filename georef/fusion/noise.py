@@ -27,6 +27,8 @@ import numpy as np
 from georef.fusion import ins_kernel as layout
 from georef.imu_errors import ImuErrorModel, white_noise_sigma
 
+#: prior sigma [m/s] of a ground vehicle's lateral and vertical body velocity (non-holonomic constraint)
+NHC_SIGMA = 0.1
 #: pseudo-residuals of the prior in the MAP step
 PRIOR_WEIGHT = 10.0
 #: one update changes a block by at most this factor
@@ -37,8 +39,10 @@ BLOCK_FIELDS: dict[int, str] = {
     layout.B_GNSS_H: "r_scale_h", layout.B_GNSS_V: "r_scale_v", layout.B_UNIT_R_LEVEL: "r_unit_level",
     layout.B_UNIT_R_YAW: "r_unit_yaw", layout.B_VEL_H: "q_vel_h", layout.B_VEL_V: "q_vel_v", layout.B_ATT_H: "q_att_h",
     layout.B_ATT_V: "q_att_v", layout.B_BG: "q_bg", layout.B_BA: "q_ba", layout.B_UNIT_LEVEL: "q_unit_level",
-    layout.B_UNIT_DRIFT: "q_unit_drift",
+    layout.B_UNIT_DRIFT: "q_unit_drift", layout.B_NHC: "r_nhc", layout.B_OUTAGE: "outage_scale",
 }
+#: the block that only means something with the non-holonomic constraint
+NHC_BLOCKS = (layout.B_NHC,)
 #: blocks that only mean something when the unit's attitude aids the filter
 UNIT_BLOCKS = (layout.B_UNIT_R_LEVEL, layout.B_UNIT_R_YAW, layout.B_UNIT_LEVEL, layout.B_UNIT_DRIFT)
 
@@ -62,10 +66,13 @@ class NoiseModel:
     r_unit_yaw: float
     r_scale_h: float = 1.0
     r_scale_v: float = 1.0
+    r_nhc: float = NHC_SIGMA**2
+    #: factor on all process noise inside GNSS outages (the error sources that show only without fixes)
+    outage_scale: float = 1.0
 
     def as_array(self) -> np.ndarray:
         """The kernel's noise vector (``ins_kernel.N_NOISE`` entries in the order of its named indices)."""
-        out = np.empty(layout.N_NOISE)
+        out = np.full(layout.N_NOISE, np.nan)
         out[layout.Q_VEL_H], out[layout.Q_VEL_V] = self.q_vel_h, self.q_vel_v
         out[layout.Q_ATT_H], out[layout.Q_ATT_V] = self.q_att_h, self.q_att_v
         out[layout.Q_BG], out[layout.INV_TAU_G] = self.q_bg, 1.0 / self.tau_g
@@ -74,6 +81,9 @@ class NoiseModel:
         out[layout.Q_UNIT_DRIFT] = self.q_unit_drift
         out[layout.R_UNIT_LEVEL], out[layout.R_UNIT_YAW] = self.r_unit_level, self.r_unit_yaw
         out[layout.R_SCALE_H], out[layout.R_SCALE_V] = self.r_scale_h, self.r_scale_v
+        out[layout.R_NHC] = self.r_nhc
+        if not np.all(np.isfinite(out)):
+            raise AssertionError(f"noise vector slots left unset: {np.flatnonzero(~np.isfinite(out)).tolist()}")
         return out
 
     def block_value(self, block: int) -> float:
@@ -140,15 +150,39 @@ def data_white_noise(time: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> t
 
 
 def starting_point(prior: NoiseModel, time: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> NoiseModel:
-    """The first pass's noise: the prior raised to the data's white-noise bound where that is larger.
+    """The first pass's noise: every IMU block raised to an upper bound where that is larger than the prior.
 
-    An overestimate keeps the first pass from trusting the inertial solution more than the data allow (a filter
-    with too little process noise diverges and locks out the fixes that could save it); the EM steps then bring
-    every block down to what the data support.
+    White noise: the data's first-difference bound. Bias drives: consumer grade (``CONSUMER_BIAS_DRIVE``, the
+    ``mems-consumer`` preset's instability over its correlation time). An overestimate keeps the first pass from
+    trusting the inertial solution more than the data allow (a filter with too little process noise diverges
+    and locks out the fixes that could save it); the estimation then brings every block down to what the data
+    support.
     """
     q_vel_h, q_vel_v, q_att_h, q_att_v = data_white_noise(time, gyro, accel)
+    q_bg, q_ba = consumer_bias_drives()
     return replace(prior, q_vel_h=max(prior.q_vel_h, q_vel_h), q_vel_v=max(prior.q_vel_v, q_vel_v),
-                   q_att_h=max(prior.q_att_h, q_att_h), q_att_v=max(prior.q_att_v, q_att_v))
+                   q_att_h=max(prior.q_att_h, q_att_h), q_att_v=max(prior.q_att_v, q_att_v),
+                   q_bg=max(prior.q_bg, q_bg * prior.tau_g / CONSUMER_TAU),
+                   q_ba=max(prior.q_ba, q_ba * prior.tau_a / CONSUMER_TAU))
+
+
+CONSUMER_TAU = 100.0
+
+
+def consumer_bias_drives() -> tuple[float, float]:
+    """Gauss-Markov drives (q_bg [rad^2/s^3], q_ba [m^2/s^5]) of the ``mems-consumer`` preset's instability."""
+    from georef.imu_errors import imu_preset
+
+    model = imu_preset("mems-consumer")
+    return (2.0 * model.gyro_markov_sigma**2 / model.gyro_bias_corr_time_s,
+            2.0 * model.accel_markov_sigma**2 / model.accel_bias_corr_time_s)
+
+
+def inflated(noise: NoiseModel, factor: float) -> NoiseModel:
+    """Every process-noise density multiplied by ``factor`` (measurement variances unchanged)."""
+    return replace(noise, q_vel_h=noise.q_vel_h * factor, q_vel_v=noise.q_vel_v * factor,
+                   q_att_h=noise.q_att_h * factor, q_att_v=noise.q_att_v * factor, q_bg=noise.q_bg * factor,
+                   q_ba=noise.q_ba * factor)
 
 
 def em_step(noise: NoiseModel, prior: NoiseModel, stats: np.ndarray, blocks: tuple[int, ...],
