@@ -407,7 +407,8 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
     starting within DRIFT_WINDOW fixes after a GNSS outage longer than ``outage_s`` [s] or an IMU gap
     (STOP_DRIFT: the inertial drift over the outage or gap exceeded the model, not a divergence); an IMU gap
     longer than ``max_gap`` [s] stops it at the row before the gap (STOP_GAP). With ``unit_aiding`` the unit's
-    roll, pitch, yaw ``unit_rpy`` (N, 3) [rad] are fused at every GNSS epoch and at least once a second; with ``nhc`` the non-holonomic constraint of a ground vehicle at every covariance epoch.
+    roll, pitch, yaw ``unit_rpy`` (N, 3) [rad] are fused at every GNSS epoch and at least once a second; with
+    ``nhc`` the non-holonomic constraint of a ground vehicle at every covariance epoch.
     The nominal state of every row is written into ``nav`` (N, NS).
 
     Returns per covariance epoch: row, interval [s], P⁻, P⁺, Φ, the feedback correction; per fix: epoch,
