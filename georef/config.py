@@ -37,8 +37,8 @@ class ProcessingConfig:
     camera_utc_offset: float | None = None
     #: camera trigger latency [s]: the exposure happened this long after its logged time
     camera_time_offset: float = 0.0
-    #: GNSS time-tag latency [s]: each fix was measured this long before its time tag; None = estimate it
-    #: (applied when the data show it beyond 3 sigma)
+    #: GNSS time-tag latency [s]: each fix was measured this long before its time tag. None: 0 is used, and the
+    #: latency the data show is estimated and reported (quality check) but not applied
     gnss_latency: float | None = None
     #: magnetic declination [deg, east positive] for a magnetometer heading (imu.csv with mag_x..z)
     magnetic_declination: float = 0.0

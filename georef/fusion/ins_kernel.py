@@ -132,6 +132,10 @@ STOP_DRIFT = 3
 #: pass with STOP_DRIFT
 DRIFT_REJECTS = 2
 DRIFT_WINDOW = 5
+#: the first REACQUIRE_FIXES fixes after a GNSS outage or an IMU gap are gated only at REACQUIRE_GATE
+#: (chi-square(3) 1 - 1e-20): they correct the drift of the gap, which is what a normal gate would reject
+REACQUIRE_FIXES = 3
+REACQUIRE_GATE = 97.0
 
 
 @njit(cache=True)
@@ -353,13 +357,13 @@ def nhc_innovation(x: np.ndarray, C: np.ndarray, nx: int):
     H = np.zeros((3, nx))
     for i in range(2):
         row = i + 1
-        z[i] = C[0, row] * v[0] + C[1, row] * v[1] + C[2, row] * v[2]
         # row of C_n_b = column of C_b_n
         c0, c1, c2 = C[0, row], C[1, row], C[2, row]
+        z[i] = c0 * v[0] + c1 * v[1] + c2 * v[2]
         H[i, VEL] = c0
         H[i, VEL + 1] = c1
         H[i, VEL + 2] = c2
-        # -cᵀ[v x] with c the row of C_n_b
+        # -cᵀ[v x]
         H[i, ATT] = c2 * v[1] - c1 * v[2]
         H[i, ATT + 1] = c0 * v[2] - c2 * v[0]
         H[i, ATT + 2] = c1 * v[0] - c0 * v[1]
@@ -588,7 +592,10 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
                 fix_S[k_fix] = S
                 fix_d2[k_fix] = d2
                 ep_loglik[n_ep, 0] -= 0.5 * (math.log(np.linalg.det(S)) + d2 + 3.0 * math.log(2.0 * math.pi))
-                if d2 <= gate_chi2:
+                # re-acquisition: the first fixes after an outage or an IMU gap correct the drift itself; only a
+                # gross outlier is gated there
+                gate = REACQUIRE_GATE if fixes_since_outage < REACQUIRE_FIXES else gate_chi2
+                if d2 <= gate:
                     fix_status[k_fix] = FIX_USED
                     rejects = 0
                     P = kalman_update(x, P, H, z, S_inv, C, dx_total)

@@ -25,10 +25,12 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from georef.fusion import ins_kernel as layout
-from georef.imu_errors import ImuErrorModel, white_noise_sigma
+from georef.imu_errors import ImuErrorModel
 
 #: prior sigma [m/s] of a ground vehicle's lateral and vertical body velocity (non-holonomic constraint)
 NHC_SIGMA = 0.1
+#: the spectral floor of the IMU data is read above this frequency [Hz] (a vehicle's own motion is below it)
+MOTION_BAND_HZ = 2.0
 #: pseudo-residuals of the prior in the MAP step
 PRIOR_WEIGHT = 10.0
 #: one update changes a block by at most this factor
@@ -41,6 +43,9 @@ BLOCK_FIELDS: dict[int, str] = {
     layout.B_ATT_V: "q_att_v", layout.B_BG: "q_bg", layout.B_BA: "q_ba", layout.B_UNIT_LEVEL: "q_unit_level",
     layout.B_UNIT_DRIFT: "q_unit_drift", layout.B_NHC: "r_nhc", layout.B_OUTAGE: "outage_scale",
 }
+#: the white specific force and angular rate: taken from the spectrum of the data (:func:`data_prior`), not
+#: fitted to the innovations, which hardly see them and, on real data, mistake correlated GNSS errors for them
+WHITE_BLOCKS = (layout.B_VEL_H, layout.B_VEL_V, layout.B_ATT_H, layout.B_ATT_V)
 #: the block that only means something with the non-holonomic constraint
 NHC_BLOCKS = (layout.B_NHC,)
 #: blocks that only mean something when the unit's attitude aids the filter
@@ -135,34 +140,48 @@ def datasheet_prior(model: ImuErrorModel, unit_level_sigma_deg: float, unit_leve
         r_unit_level=angle, r_unit_yaw=angle)
 
 
-def data_white_noise(time: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> tuple[float, float, float, float]:
-    """Upper bounds on the white noise densities the data show: (q_vel_h, q_vel_v, q_att_h, q_att_v).
+def spectral_white_noise(time: np.ndarray, gyro: np.ndarray, accel: np.ndarray,
+                         motion_hz: float = MOTION_BAND_HZ) -> tuple[float, float, float, float]:
+    """White-noise densities the IMU data show, vibration included, at the row rate: the floor of their spectrum.
 
-    Robust first differences at the row rate see white noise *and* vibration of any spectrum (and fast
-    motion), so they bound the density the filter needs from above. Narrow-band rotor vibration integrates to
-    almost nothing and makes this bound far too large, which is why it only starts the adaptation, which then
-    comes down to what the innovations support. Body axes are taken as roughly level: x, y -> horizontal.
+    Welch periodograms (4 s segments, linear detrend) of each axis at the row rate; the density is the median of
+    the bins from ``motion_hz`` (above a vehicle's own motion) to 0.9 x Nyquist, halved (two-sided). The median
+    ignores narrow-band lines (a rotor's blade-pass frequency and its aliases), which integrate to almost
+    nothing; broad-band vibration that does act like white noise raises it. Returns (q_vel_h, q_vel_v
+    [m^2/s^3], q_att_h, q_att_v [rad^2/s]), with the body x, y axes taken as horizontal.
     """
+    from scipy.signal import welch
+
     dt = float(np.median(np.diff(time)))
-    acc = white_noise_sigma(accel) ** 2 * dt
-    gyr = white_noise_sigma(gyro) ** 2 * dt
-    return float(acc[:2].mean()), float(acc[2]), float(gyr[:2].mean()), float(gyr[2])
+    rate = 1.0 / dt
+    segment = int(min(len(time), round(4.0 * rate)))
+    if segment < 32 or 0.9 * rate / 2.0 <= motion_hz:
+        return 0.0, 0.0, 0.0, 0.0
+    freq, acc = welch(accel, fs=rate, nperseg=segment, detrend="linear", axis=0)
+    _, gyr = welch(gyro, fs=rate, nperseg=segment, detrend="linear", axis=0)
+    band = (freq >= motion_hz) & (freq <= 0.9 * rate / 2.0)
+    acc_floor = np.median(acc[band], axis=0) / 2.0
+    gyr_floor = np.median(gyr[band], axis=0) / 2.0
+    return (float(acc_floor[:2].mean()), float(acc_floor[2]), float(gyr_floor[:2].mean()), float(gyr_floor[2]))
 
 
-def starting_point(prior: NoiseModel, time: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> NoiseModel:
-    """The first pass's noise: every IMU block raised to an upper bound where that is larger than the prior.
-
-    White noise: the data's first-difference bound. Bias drives: consumer grade (``CONSUMER_BIAS_DRIVE``, the
-    ``mems-consumer`` preset's instability over its correlation time). An overestimate keeps the first pass from
-    trusting the inertial solution more than the data allow (a filter with too little process noise diverges
-    and locks out the fixes that could save it); the estimation then brings every block down to what the data
-    support.
-    """
-    q_vel_h, q_vel_v, q_att_h, q_att_v = data_white_noise(time, gyro, accel)
-    q_bg, q_ba = consumer_bias_drives()
+def data_prior(prior: NoiseModel, time: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> NoiseModel:
+    """The datasheet prior with its white-noise blocks raised to the spectral floor of the data where that is
+    larger: vibration that acts as white noise is part of the sensor's noise on this installation."""
+    q_vel_h, q_vel_v, q_att_h, q_att_v = spectral_white_noise(time, gyro, accel)
     return replace(prior, q_vel_h=max(prior.q_vel_h, q_vel_h), q_vel_v=max(prior.q_vel_v, q_vel_v),
-                   q_att_h=max(prior.q_att_h, q_att_h), q_att_v=max(prior.q_att_v, q_att_v),
-                   q_bg=max(prior.q_bg, q_bg * prior.tau_g / CONSUMER_TAU),
+                   q_att_h=max(prior.q_att_h, q_att_h), q_att_v=max(prior.q_att_v, q_att_v))
+
+
+def starting_point(prior: NoiseModel) -> NoiseModel:
+    """The first pass's noise: the prior with the bias drives raised to consumer grade (``CONSUMER_BIAS_DRIVE``,
+    the ``mems-consumer`` preset's instability over its correlation time) where that is larger. An overestimate
+    keeps the first pass from trusting the inertial solution more than the data allow (a filter with too little
+    process noise diverges and locks out the fixes that could save it); the estimation then brings every block
+    to what the data support.
+    """
+    q_bg, q_ba = consumer_bias_drives()
+    return replace(prior, q_bg=max(prior.q_bg, q_bg * prior.tau_g / CONSUMER_TAU),
                    q_ba=max(prior.q_ba, q_ba * prior.tau_a / CONSUMER_TAU))
 
 
@@ -179,10 +198,10 @@ def consumer_bias_drives() -> tuple[float, float]:
 
 
 def inflated(noise: NoiseModel, factor: float) -> NoiseModel:
-    """Every process-noise density multiplied by ``factor`` (measurement variances unchanged)."""
-    return replace(noise, q_vel_h=noise.q_vel_h * factor, q_vel_v=noise.q_vel_v * factor,
-                   q_att_h=noise.q_att_h * factor, q_att_v=noise.q_att_v * factor, q_bg=noise.q_bg * factor,
-                   q_ba=noise.q_ba * factor)
+    """The bias drives and the outage noise multiplied by ``factor``; the white noise (a hypothesis under test)
+    and the measurement variances unchanged."""
+    return replace(noise, q_bg=noise.q_bg * factor, q_ba=noise.q_ba * factor,
+                   outage_scale=noise.outage_scale * factor)
 
 
 def em_step(noise: NoiseModel, prior: NoiseModel, stats: np.ndarray, blocks: tuple[int, ...],
