@@ -12,6 +12,7 @@ from georef.config import ProcessingConfig
 from georef.evaluate import accuracy, frame_errors
 from georef.io.eo_table import write_eo_csv
 from georef.pipeline import process
+from georef.qc import assess_result
 from georef.sim.files import write_flight
 from georef.sim.flight import SimConfig, simulate
 
@@ -38,6 +39,7 @@ def main() -> None:
     print(f"yaw offset {summary['yaw_offset_deg']:.2f} ± {summary['yaw_offset_sigma_deg']:.2f} deg")
     for name, value in accuracy(frame_errors(result.table, flight.truth_frames)).items():
         print(f"  {name:<18} {value:.3f}")
+    print(assess_result(result))    # the quality checks: "QC passed" or what failed and what to do
 
 
 if __name__ == "__main__":

@@ -6,6 +6,10 @@ manifest). Each flight is one task: by default on a ``LocalCluster`` of worker p
 on an existing cluster given by its scheduler address. A failed flight is reported with its reason and the
 others go on. Every flight gets ``<out>/<flight>/eo.csv`` and ``<out>/<flight>/georef.log``; the batch writes
 ``<out>/batch_summary.csv``.
+
+Each flight's quality checks (:mod:`georef.qc`) run on the worker and come back as plain text in the row:
+``qc`` is ``"passed"`` or ``"failed: <check names>"`` (empty when the flight did not run), ``qc_details`` the
+failing and warning checks' messages, one ``"<status> <name>: <message>"`` each, joined by ``" | "``.
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ from georef.io.atomic import atomic_write
 from georef.io.errors import InputError
 
 SUMMARY_COLUMNS = ["flight", "status", "method", "frames", "frames_flagged", "gnss_epochs", "rejected_fixes",
-                   "innovation_mean_nis", "innovation_share_over_gate", "runtime_s", "message"]
+                   "innovation_mean_nis", "innovation_share_over_gate", "qc", "qc_details", "runtime_s", "message"]
 
 
 @dataclass(frozen=True)
@@ -70,6 +74,7 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None) 
     from georef.config import ProcessingConfig, load_config
     from georef.io.eo_table import write_eo_csv
     from georef.pipeline import process
+    from georef.qc import assess_result
 
     start = time.perf_counter()
     out = Path(output_root) / job.flight
@@ -94,7 +99,12 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None) 
                    innovation_share_over_gate=float(np.mean(gnss.normalised_innovation_sq[gnss.status >= 0]
                                                             > cfg.gate_chi2)) if len(nis) else float("nan"),
                    message="")
+        # the verdict is judged here, on the worker, and travels back as plain text
+        verdict = assess_result(result)
+        row.update(qc="passed" if verdict.passed else "failed: " + ", ".join(c.name for c in verdict.failures),
+                   qc_details=" | ".join(c.line() for c in verdict.checks if c.status != "pass"))
         log_lines += [f"{key}: {value}" for key, value in summary.items()]
+        log_lines += [f"QC {check.line()}" for check in verdict.checks]
         log_lines += [f"notice: {notice}" for notice in result.notices]
     except Exception as exc:  # noqa: BLE001 - a failed flight is reported, the batch goes on
         row["message"] = f"{type(exc).__name__}: {exc}"

@@ -27,6 +27,9 @@ FLAG_OUTSIDE = "outside navigation span"
 FLAG_OUTAGE = "in GNSS outage"
 FLAG_DUPLICATE = "duplicate frame number"
 FLAG_ORDER = "time earlier than previous frame"
+#: inertial only at the ends of the log: "after the last GNSS fix (12 s of inertial only)"
+FLAG_AFTER_LAST_FIX = "after the last GNSS fix"
+FLAG_BEFORE_FIRST_FIX = "before the first GNSS fix"
 
 
 def _flags(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, outage_min_s: float) -> np.ndarray:
@@ -37,6 +40,13 @@ def _flags(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, outag
         if end - start >= outage_min_s:
             for i in np.flatnonzero(states.inside & (exposures.time > start) & (exposures.time < end)):
                 flags[i].append(f"{FLAG_OUTAGE} ({end - start:.0f} s)")
+    if len(gnss.time):
+        # a GNSS outage that runs to the end of the log (or from its start): inertial only, from or to the fix
+        first, last = float(np.min(gnss.time)), float(np.max(gnss.time))
+        for i in np.flatnonzero(states.inside & (exposures.time > last + outage_min_s)):
+            flags[i].append(f"{FLAG_AFTER_LAST_FIX} ({exposures.time[i] - last:.0f} s of inertial only)")
+        for i in np.flatnonzero(states.inside & (exposures.time < first - outage_min_s)):
+            flags[i].append(f"{FLAG_BEFORE_FIRST_FIX} ({first - exposures.time[i]:.0f} s of inertial only)")
     _, inverse, counts = np.unique(exposures.frame, return_inverse=True, return_counts=True)
     for i in np.flatnonzero(counts[inverse] > 1):
         flags[i].append(FLAG_DUPLICATE)
@@ -47,7 +57,12 @@ def _flags(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, outag
 
 def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, cfg: ProcessingConfig,
                     outage_min_s: float = 2.5) -> pd.DataFrame:
-    """The EO table of every exposure (rows outside the navigation span have empty values and a flag)."""
+    """The EO table of every exposure (rows outside the navigation span have empty values and a flag).
+
+    Flags (joined by ``"; "``): outside the navigation span; in a GNSS outage of at least ``outage_min_s`` [s];
+    more than ``outage_min_s`` after the last GNSS fix or before the first one (with the seconds of inertial-only
+    navigation); a duplicate frame number; a time earlier than the previous frame's.
+    """
     inside = states.inside
     n = len(exposures)
     out = {name: np.full(n, np.nan) for name in EO_COLUMNS[2:]}

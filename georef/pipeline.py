@@ -17,9 +17,11 @@ import pandas as pd
 
 from georef.align import to_reference_day
 from georef.config import ProcessingConfig
-from georef.eo import FLAG_OUTSIDE, camera_eo_table
+from georef.eo import FLAG_AFTER_LAST_FIX, FLAG_BEFORE_FIRST_FIX, FLAG_OUTSIDE, camera_eo_table
 from georef.exposure import interpolate_to_exposures
+from georef.frames.rotations import wrap_pi
 from georef.fusion import axis, ins
+from georef.fusion.ins_kernel import UNIT_YAW
 from georef.fusion.solution import NavSolution
 from georef.io.camera import Exposures, read_camera_log, read_kamera
 from georef.io.errors import GeorefError, InputNotice
@@ -55,15 +57,19 @@ class ProcessResult:
     timings: dict[str, float] = field(default_factory=dict)
 
     def summary(self) -> dict[str, object]:
-        """Figures for the end-of-run report (units in the keys)."""
+        """Figures for the end-of-run report (units in the keys). The yaw-offset figures are those of
+        ``--method axis`` (None otherwise); the heading source, the unit's yaw origin and the fitted noise those of
+        the full-state filters (see :func:`solution_figures`)."""
         flags = self.table["flag"].astype(str)
         yaw = self.nav.info.get("yaw_offset")
         gnss = self.nav.gnss
-        return {
+        summary: dict[str, object] = {
             "frames_written": len(self.table),
             "frames_flagged": int((flags != "").sum()),
-            "frames_outside_span": int(flags.str.contains(FLAG_OUTSIDE).sum()),
-            "frames_in_outage": int(flags.str.contains("GNSS outage").sum()),
+            "frames_outside_span": int(flags.str.contains(FLAG_OUTSIDE, regex=False).sum()),
+            "frames_in_outage": int(flags.str.contains("GNSS outage", regex=False).sum()),
+            "frames_after_last_fix": int(flags.str.contains(FLAG_AFTER_LAST_FIX, regex=False).sum()),
+            "frames_before_first_fix": int(flags.str.contains(FLAG_BEFORE_FIRST_FIX, regex=False).sum()),
             "time_span_s": (float(self.log.time[0]), float(self.log.time[-1])),
             "imu_rows": len(self.log),
             "imu_rate_hz": self.log.sample_rate_hz,
@@ -78,6 +84,49 @@ class ProcessResult:
             "time_quirks_repaired": self.log.time_repairs.n_quirks,
             "method": self.nav.method,
         }
+        summary.update(solution_figures(self.nav, self.config))
+        return summary
+
+
+def solution_figures(nav: NavSolution, cfg: ProcessingConfig) -> dict[str, object]:
+    """What the full-state filters (``nav.diagnostics`` set) found, for summaries (empty for other methods):
+
+    * ``heading_source``: where the initial heading came from;
+    * ``unit_yaw_origin_deg``, ``unit_yaw_origin_sigma_deg``: the POS unit's yaw origin ``d`` (true yaw = unit
+      yaw + d) at the filter's first row and its 1-sigma [deg], and ``unit_yaw_drift_deg_per_min`` its drift (a
+      straight line fitted to the smoothed origin) [deg/min]: only when the unit's attitude aided the filter;
+    * ``gnss_sigma_fitted_m``: the GNSS sigmas north, east, up the fitted noise model uses [m]
+      (sqrt(r_scale) times ``cfg.gnss_sigma``), ``vrw_m_s_sqrt_h`` the horizontal velocity random walk
+      [m/s/sqrt(h)], ``arw_deg_sqrt_h`` the angle random walk about north/east [deg/sqrt(h)];
+    * ``ground_vehicle``: non-holonomic constraints applied.
+    """
+    diagnostics = nav.diagnostics
+    if diagnostics is None:
+        return {}
+    noise = diagnostics.noise
+    sigma = np.asarray(cfg.gnss_sigma, float)
+    scale = np.sqrt([noise.r_scale_h, noise.r_scale_h, noise.r_scale_v])
+    figures: dict[str, object] = {
+        "heading_source": str(diagnostics.heading_source),
+        "unit_yaw_origin_deg": None, "unit_yaw_origin_sigma_deg": None, "unit_yaw_drift_deg_per_min": None,
+        "gnss_sigma_fitted_m": tuple(float(v) for v in sigma * scale),
+        "vrw_m_s_sqrt_h": float(noise.vrw_h), "arw_deg_sqrt_h": float(noise.arw_h),
+        "ground_vehicle": bool(diagnostics.ground_vehicle),
+    }
+    origin = nav.info.get("unit_yaw_origin")
+    epoch_sigma = nav.info.get("epoch_sigma")
+    if diagnostics.unit_aiding and origin is not None and epoch_sigma is not None and len(epoch_sigma):
+        start = int(nav.info.get("start_row", 0))
+        rows = np.flatnonzero(nav.valid & np.isfinite(origin))
+        rows = rows[rows >= start]
+        if len(rows):
+            d = np.unwrap(np.asarray(origin, float)[rows])
+            figures["unit_yaw_origin_deg"] = float(np.degrees(wrap_pi(d[0])))
+            figures["unit_yaw_origin_sigma_deg"] = float(np.degrees(epoch_sigma[0, UNIT_YAW]))
+            if len(rows) > 1 and nav.time[rows[-1]] > nav.time[rows[0]]:
+                slope = np.polyfit(nav.time[rows] - nav.time[rows[0]], d, 1)[0]
+                figures["unit_yaw_drift_deg_per_min"] = float(np.degrees(slope) * 60.0)
+    return figures
 
 
 def recompute_unit_tilt(log: PosLog) -> None:
@@ -125,6 +174,9 @@ def process(pos_path: Path | str, camera_path: Path | str, cfg: ProcessingConfig
     log = read_pos(pos_path, required_roles=roles, column_names=cfg.pos_columns, gnss_rate_hz=cfg.gnss_rate_hz)
     say("reading exposures")
     exposures = read_exposures(camera_path, cfg)
+    if cfg.camera_time_offset:
+        # trigger latency: each exposure happened camera_time_offset [s] after its logged time
+        exposures.time = exposures.time + float(cfg.camera_time_offset)
     exposures.time = to_reference_day(exposures.time, float(log.time[0]), float(log.time[-1]))
     timings["read"] = time.perf_counter() - start
 

@@ -1,8 +1,9 @@
 """A quality-control report: one self-contained HTML page with PNG plots beside it.
 
-Sections: ground track (stations, GNSS outages, rejected fixes), position and velocity per axis, attitude with
-±σ bands, innovations against the χ² gate, estimated sensor biases, the recovered yaw offset, and a summary
-table of the figures. ``georef process --report out.html`` writes it.
+Sections: the quality checks and their verdict (:mod:`georef.qc`), ground track (stations, GNSS outages,
+rejected fixes), position and velocity per axis, attitude with ±σ bands, innovations against the χ² gate,
+estimated sensor biases, the recovered yaw offset, and a summary table of the figures.
+``georef process --report out.html`` writes it.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from georef.frames import C_e_n, wrap_360  # noqa: E402
 from georef.io.atomic import atomic_write  # noqa: E402
 
 SECTIONS = [
+    ("qc", "Quality checks"),
     ("track", "Ground track"),
     ("position", "Position and velocity"),
     ("attitude", "Attitude with ±σ"),
@@ -166,8 +168,26 @@ def _yaw_offset(result, folder: Path, stem: str) -> str | None:
     return _save(fig, folder, f"{stem}_yaw_offset.png")
 
 
-def write_report(result, path: Path | str, accuracy: dict[str, float] | None = None) -> Path:
-    """Write the HTML report and its PNG plots (``<stem>_*.png`` beside it); returns the HTML path."""
+_STATUS_COLOURS = {"pass": "#1a7f37", "warn": "#9a6700", "fail": "#cf222e"}
+
+
+def _quality_checks(verdict) -> str:
+    """The verdict and one row per check (status, name, message) as HTML."""
+    colour = _STATUS_COLOURS["pass" if verdict.passed else "fail"]
+    rows = "".join(f'<tr><td style="color:{_STATUS_COLOURS[c.status]};font-weight:bold">{html.escape(c.status)}</td>'
+                   f"<th>{html.escape(c.name)}</th><td>{html.escape(c.message)}</td></tr>" for c in verdict.checks)
+    return (f'<p class="verdict" style="color:{colour};font-weight:bold">QC {html.escape(verdict.short())}</p>'
+            f"<table>{rows}</table>")
+
+
+def write_report(result, path: Path | str, accuracy: dict[str, float] | None = None, verdict=None) -> Path:
+    """Write the HTML report and its PNG plots (``<stem>_*.png`` beside it); returns the HTML path.
+
+    ``verdict``: the run's :class:`georef.qc.Verdict` (computed here when not given)."""
+    if verdict is None:
+        from georef.qc import assess_result
+
+        verdict = assess_result(result)
     path = Path(path)
     folder = path.parent
     folder.mkdir(parents=True, exist_ok=True)
@@ -198,7 +218,9 @@ def write_report(result, path: Path | str, accuracy: dict[str, float] | None = N
     body = []
     for key, title in SECTIONS:
         body.append(f'<section id="{key}"><h2>{html.escape(title)}</h2>')
-        if key == "summary":
+        if key == "qc":
+            body.append(_quality_checks(verdict))
+        elif key == "summary":
             body.append("<table>" + "".join(f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(fmt(v))}</td></tr>"
                                             for k, v in rows) + "</table>")
         elif images.get(key):

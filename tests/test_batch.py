@@ -43,14 +43,17 @@ def test_batch_on_a_local_cluster(flights, tmp_path):
         kamera = pd.read_csv(flights / flight / "Kamera.txt", sep="\t")
         assert len(table) == len(kamera) == int(ok.loc[ok["flight"] == flight, "frames"].iloc[0])
         assert "status ok" in (tmp_path / flight / "georef.log").read_text()
+    # the verdict, judged on the worker, came back as text
+    assert list(ok["qc"]) == ["passed"] * 3, list(ok["qc_details"])
+    assert "QC pass innovations" in (tmp_path / "flight1" / "georef.log").read_text()
     broken = summary[summary["flight"] == "broken"].iloc[0]
-    assert broken["status"] == "failed"
+    assert broken["status"] == "failed" and pd.isna(broken["qc"])
     assert "line 500" in broken["message"] and "ACCS_X" in broken["message"]
     assert "FAILED" in (tmp_path / "broken" / "georef.log").read_text()
     on_disk = pd.read_csv(tmp_path / "batch_summary.csv")
     assert list(on_disk["flight"]) == ["broken", "flight1", "flight2", "flight3"]
     assert (on_disk["runtime_s"] > 0).all()
-    assert {"innovation_mean_nis", "rejected_fixes", "method"} <= set(on_disk.columns)
+    assert {"innovation_mean_nis", "rejected_fixes", "method", "qc", "qc_details"} <= set(on_disk.columns)
 
 
 def test_batch_from_a_manifest_via_the_cli(flights, tmp_path):
@@ -71,3 +74,33 @@ def test_bad_manifest_is_a_clear_error(tmp_path):
     manifest.write_text("name,pos\nx,y\n")
     with pytest.raises(InputError, match="flight, pos, camera"):
         discover(manifest)
+
+
+def test_a_flight_that_fails_qc_makes_the_batch_exit_4(flights, tmp_path):
+    shifted = tmp_path / "Kamera_shifted.txt"
+    kamera = pd.read_csv(flights / "flight3" / "Kamera.txt", sep="\t")
+    kamera["Time"] += 7200                      # a camera clock two hours off
+    kamera.to_csv(shifted, sep="\t", index=False)
+    manifest = tmp_path / "flights.csv"
+    pd.DataFrame({"flight": ["good", "clock"],
+                  "pos": [str(flights / "flight2" / "POS.txt"), str(flights / "flight3" / "POS.txt")],
+                  "camera": [str(flights / "flight2" / "Kamera.txt"), str(shifted)]}).to_csv(manifest, index=False)
+    result = CliRunner().invoke(app, ["batch", str(manifest), "-o", str(tmp_path / "out"), "--method", "axis",
+                                      "--workers", "2"])
+    assert result.exit_code == 4, result.output
+    assert "QC failed: clock: fail frames:" in result.output
+    summary = pd.read_csv(tmp_path / "out" / "batch_summary.csv")
+    assert list(summary["status"]) == ["ok", "ok"]
+    assert list(summary["qc"]) == ["passed", "failed: frames"]
+    assert "--camera-utc-offset" in summary.loc[1, "qc_details"]
+    # the outputs of the failed flight are written all the same
+    assert len(pd.read_csv(tmp_path / "out" / "clock" / "eo.csv")) == len(kamera)
+
+
+def test_a_batch_where_every_flight_failed_to_run_exits_2(flights, tmp_path):
+    manifest = tmp_path / "flights.csv"
+    pd.DataFrame({"flight": ["broken"], "pos": [str(flights / "broken" / "POS.txt")],
+                  "camera": [str(flights / "broken" / "Kamera.txt")]}).to_csv(manifest, index=False)
+    result = CliRunner().invoke(app, ["batch", str(manifest), "-o", str(tmp_path / "out"), "--workers", "1", "-q"])
+    assert result.exit_code == 2, result.output
+    assert "failed: broken" in result.output and "QC failed" not in result.output

@@ -58,6 +58,8 @@ def test_report_renders_in_headless_chromium(tmp_path):
         assert f'id="{key}"' in dom
         assert title.split(" ")[0] in dom
     assert "rejected" in dom and "horizontal_rms_m" in dom
+    # the quality checks: the verdict and one row per check
+    assert "QC passed" in dom and "innovations" in dom and "mean normalised innovation squared" in dom
 
     # the same page without its PNGs: the coloured plot lines appear only when the plots are rendered
     bare = tmp_path / "bare"

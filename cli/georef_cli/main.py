@@ -1,7 +1,9 @@
 """``georef``: direct georeferencing from the command line.
 
-Errors in the user's input are printed as one actionable line (file, line, column) with exit code 2;
-never a traceback.
+Exit codes: 0 done and the quality checks passed; 2 an error in the user's input, printed as one actionable
+line (file, line, column), never a traceback; 3 an internal error (a bug in georef); 4 the outputs are written
+but the quality checks failed (``docs/qc.md``). Text from the user's files and options is escaped before rich
+prints it (a path such as ``flight[red]/POS.txt`` prints as it is).
 """
 
 from __future__ import annotations
@@ -17,11 +19,17 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from georef.config import METHODS, ProcessingConfig, load_config
 from georef.io.errors import GeorefError
+
+#: exit codes (docs/qc.md)
+EXIT_USER_ERROR = 2
+EXIT_INTERNAL_ERROR = 3
+EXIT_QC_FAILED = 4
 
 app = typer.Typer(
     add_completion=False, no_args_is_help=True, rich_markup_mode=None, pretty_exceptions_enable=False,
@@ -53,20 +61,20 @@ def _user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
         try:
             return func(*args, **kwargs)
         except (GeorefError, ValueError, KeyError, OSError) as exc:  # CRSChoiceError is a ValueError
-            console.print(f"[bold red]error:[/] {exc}", highlight=False)
-            raise typer.Exit(code=2) from None
+            console.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False)
+            raise typer.Exit(code=EXIT_USER_ERROR) from None
         except typer.BadParameter as exc:
-            console.print(f"[bold red]error:[/] {exc.format_message()}", highlight=False)
-            raise typer.Exit(code=2) from None
+            console.print(f"[bold red]error:[/] {escape(exc.format_message())}", highlight=False)
+            raise typer.Exit(code=EXIT_USER_ERROR) from None
         except (typer.Exit, typer.Abort, SystemExit, KeyboardInterrupt):
             raise
         except Exception as exc:  # a bug in georef, not in the user's input
             if os.environ.get("GEOREF_DEBUG"):
                 raise
-            console.print(f"[bold red]internal error:[/] {type(exc).__name__}: {exc}. This is a bug in georef; "
-                          "please report it with the command you ran (GEOREF_DEBUG=1 shows the traceback).",
+            console.print(f"[bold red]internal error:[/] {type(exc).__name__}: {escape(str(exc))}. This is a bug in "
+                          "georef; please report it with the command you ran (GEOREF_DEBUG=1 shows the traceback).",
                           highlight=False)
-            raise typer.Exit(code=3) from None
+            raise typer.Exit(code=EXIT_INTERNAL_ERROR) from None
 
     return wrapper
 
@@ -86,6 +94,28 @@ def _stage_progress(quiet: bool, total: int) -> tuple[Progress | None, Callable[
         progress.update(task, description=description)
 
     return progress, step
+
+
+GNSS_LATENCY_HELP = ("GNSS time-tag latency in seconds (the fix was measured this long before its time tag); "
+                     "default: estimated and reported, not applied.")
+VEHICLE_HELP = ("auto (non-holonomic constraints when the motion shows a ground vehicle; default), ground (always) "
+                "or air (never).")
+
+
+def _print_verdict(verdict: Any, quiet: bool) -> None:
+    """The quality checks on stderr: one line per failing (and, unless ``quiet``, warning) check, then the
+    verdict; a green "QC passed" when nothing is wrong."""
+    for check in verdict.checks:
+        if check.status == "fail":
+            console.print(f"[bold red]QC fail[/] {escape(check.name)}: {escape(check.message)}", highlight=False)
+        elif check.status == "warn" and not quiet:
+            console.print(f"[yellow]QC warning[/] {escape(check.name)}: {escape(check.message)}", highlight=False)
+    if not verdict.passed:
+        console.print(f"[bold red]QC failed[/] ({len(verdict.failures)} check(s)): the outputs are written; exit "
+                      f"code {EXIT_QC_FAILED} (docs/qc.md)", highlight=False)
+    elif not quiet:
+        extra = f" with {len(verdict.warnings)} warning(s)" if verdict.warnings else ""
+        console.print(f"[bold green]QC passed[/]{extra}", highlight=False)
 
 
 @app.command()
@@ -111,18 +141,28 @@ def process(
     gnss_rate: Annotated[float | None, typer.Option(help="GNSS fix rate in Hz (default 1).")] = None,
     camera_utc_offset: Annotated[float | None, typer.Option(
         help="UTC offset of the camera's local clock in hours (raw camera log only), e.g. 2 for UTC+2.")] = None,
+    camera_time_offset: Annotated[float | None, typer.Option(
+        help="Camera trigger latency in seconds, added to every exposure time (the exposure happened this long "
+             "after its logged time); default 0.")] = None,
+    gnss_latency: Annotated[float | None, typer.Option(help=GNSS_LATENCY_HELP)] = None,
+    vehicle: Annotated[str | None, typer.Option(help=VEHICLE_HELP)] = None,
     crs: Annotated[str | None, typer.Option(
         help="Projected CRS for easting/northing columns, e.g. EPSG:3765 (HTRS96/TM).")] = None,
     attitude_source: Annotated[str | None, typer.Option(
         help="Roll and pitch from the POS unit ('unit', default) or recomputed from the raw IMU ('imu').")] = None,
     report: Annotated[Path | None, typer.Option(
         help="Also write an HTML quality report here (PNG plots beside it).")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors and failed quality "
+                                                               "checks.")] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Also list every input notice.")] = False,
 ) -> None:
-    """Turn POS.txt + exposure times into the exterior orientation of every frame."""
+    """Turn POS.txt + exposure times into the exterior orientation of every frame.
+
+    Exit code 4: the outputs are written but the quality checks failed (docs/qc.md).
+    """
     from georef.io.exports import NEEDS_CRS, write_export
     from georef.pipeline import process as run
+    from georef.qc import assess_result
 
     cfg = load_config(config) if config else ProcessingConfig()
     cfg = cfg.updated(
@@ -131,6 +171,7 @@ def process(
         boresight=_triple(boresight, "--boresight", "degrees"),
         gnss_sigma=_triple(gnss_sigma, "--gnss-sigma", "metres"), gnss_rate_hz=gnss_rate,
         camera_utc_offset=camera_utc_offset, crs=crs, attitude_source=attitude_source,
+        camera_time_offset=camera_time_offset, gnss_latency=gnss_latency, vehicle=vehicle,
     )
     if output_format in NEEDS_CRS and not cfg.crs:
         raise typer.BadParameter(f"--format {output_format} writes projected coordinates: give --crs EPSG:xxxx")
@@ -139,18 +180,44 @@ def process(
         result = run(pos, camera, cfg, progress=step)
         step("writing table")
         write_export(result.table, output, output_format, cfg.crs)
+        verdict = assess_result(result)
         if report is not None:
             from georef.report import write_report
 
             step("writing report")
-            write_report(result, report)
+            write_report(result, report, verdict=verdict)
     if not quiet:
         _print_summary(result, output, verbose)
+    _print_verdict(verdict, quiet)
+    if not verdict.passed:
+        raise typer.Exit(code=EXIT_QC_FAILED)
+
+
+def _filter_rows(s: dict[str, Any]) -> list[tuple[str, str]]:
+    """Summary rows of the full-state filters (``georef.pipeline.solution_figures``): heading source, the unit's
+    yaw origin, the fitted noise, the ground-vehicle constraints. Empty for the other methods."""
+    rows: list[tuple[str, str]] = []
+    if s.get("heading_source") is None:
+        return rows
+    rows.append(("heading source", escape(str(s["heading_source"]))))
+    if s.get("unit_yaw_origin_deg") is not None:
+        drift = s.get("unit_yaw_drift_deg_per_min")
+        rows.append(("unit yaw origin", f"{s['unit_yaw_origin_deg']:.3f} ± {s['unit_yaw_origin_sigma_deg']:.3f} deg "
+                     "at the start (true yaw = unit yaw + origin)"
+                     + (f", drift {drift:.3f} deg/min" if drift is not None else "")))
+    sigma_n, sigma_e, sigma_u = s["gnss_sigma_fitted_m"]
+    horizontal = f"{sigma_n:.2f}" if abs(sigma_n - sigma_e) < 0.005 else f"{sigma_n:.2f}/{sigma_e:.2f}"
+    rows.append(("noise", f"GNSS σ h {horizontal} m, v {sigma_u:.2f} m (fitted); VRW {s['vrw_m_s_sqrt_h']:.3f} "
+                 f"m/s/√h, ARW {s['arw_deg_sqrt_h']:.3f} deg/√h"))
+    if s.get("ground_vehicle"):
+        rows.append(("ground vehicle", "non-holonomic constraints"))
+    return rows
 
 
 def _print_summary(result: Any, output: Path, verbose: bool) -> None:
     s = result.summary()
-    table = Table(title=f"georef process ({s['method']}) -> {output}", show_header=False, title_justify="left")
+    table = Table(title=f"georef process ({s['method']}) -> {escape(str(output))}", show_header=False,
+                  title_justify="left")
     table.add_column("what", style="bold")
     table.add_column("value")
     t0, t1 = s["time_span_s"]
@@ -159,6 +226,9 @@ def _print_summary(result: Any, output: Path, verbose: bool) -> None:
         table.add_row("outside nav span", f"{s['frames_outside_span']} frames: rows kept, values empty")
     if s["frames_in_outage"]:
         table.add_row("in GNSS outage", f"{s['frames_in_outage']} frames")
+    if s["frames_after_last_fix"] or s["frames_before_first_fix"]:
+        table.add_row("beyond the GNSS fixes", f"{s['frames_before_first_fix']} frames before the first fix, "
+                      f"{s['frames_after_last_fix']} after the last (inertial only)")
     table.add_row("time span", f"{t0:.2f} - {t1:.2f} s UTC of day ({t1 - t0:.1f} s), "
                   f"{s['imu_rows']} IMU rows at {s['imu_rate_hz']:.1f} Hz")
     gaps = s["gnss_gaps"]
@@ -174,6 +244,8 @@ def _print_summary(result: Any, output: Path, verbose: bool) -> None:
     if s["yaw_offset_deg"] is not None:
         table.add_row("yaw offset", f"{s['yaw_offset_deg']:.3f} ± {s['yaw_offset_sigma_deg']:.3f} deg, drift "
                       f"{s['yaw_drift_deg_per_min']:.3f} ± {s['yaw_drift_sigma_deg_per_min']:.3f} deg/min")
+    for what, value in _filter_rows(s):
+        table.add_row(what, value)
     table.add_row("time quirks repaired", str(s["time_quirks_repaired"]))
     valid = result.table.dropna(subset=["sigma_n"])
     if len(valid):
@@ -181,17 +253,11 @@ def _print_summary(result: Any, output: Path, verbose: bool) -> None:
         table.add_row("median sigma", f"horizontal {np.median(horizontal):.2f} m, vertical "
                       f"{np.median(valid['sigma_u']):.2f} m, yaw {np.median(valid['sigma_yaw']):.2f} deg")
     out.print(table)
-    outside = result.table["flag"].astype(str).str.contains("outside navigation span")
-    if outside.any():
-        frames = result.table.loc[outside, "frame"].astype(str).tolist()
-        console.print(f"[yellow]warning:[/] {len(frames)} frame(s) outside the navigation span have rows with empty "
-                      f"values and a flag: {', '.join(frames[:10])}{' ...' if len(frames) > 10 else ''}",
-                      highlight=False)
     notices = result.notices
     if notices:
         shown = notices if verbose else notices[:5]
         for notice in shown:
-            console.print(f"[yellow]notice:[/] {notice}", highlight=False)
+            console.print(f"[yellow]notice:[/] {escape(str(notice))}", highlight=False)
         if len(notices) > len(shown):
             console.print(f"[yellow]notice:[/] ... {len(notices) - len(shown)} more (use --verbose)")
 
@@ -308,7 +374,7 @@ def simulate(
         if generic:
             paths.update(write_generic(flight, folder))
     if not quiet:
-        out.print(f"wrote {', '.join(str(p) for p in paths.values())}")
+        out.print(f"wrote {escape(', '.join(str(p) for p in paths.values()))}", highlight=False)
         out.print(f"{vehicle}: {len(flight.pos)} POS rows at {rate:g} Hz, {len(flight.exposures)} exposures, "
                   f"{len(flight.gnss_fixes)} GNSS fixes at {gnss_rate:g} Hz")
 
@@ -328,17 +394,26 @@ def fuse(
         help="GNSS sigma N,E,U in metres for fixes without their own sigmas (default 1,1,2).")] = None,
     imu_preset: Annotated[str | None, typer.Option(
         help="IMU error preset: mems-ivru, mems-consumer, tactical-fog (datasheet values in docs).")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors.")] = False,
+    gnss_latency: Annotated[float | None, typer.Option(help=GNSS_LATENCY_HELP)] = None,
+    vehicle: Annotated[str | None, typer.Option(help=VEHICLE_HELP)] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors and failed quality "
+                                                               "checks.")] = False,
 ) -> None:
-    """Fuse generic IMU and GNSS files into a trajectory (position, velocity, attitude with sigmas)."""
+    """Fuse generic IMU and GNSS files into a trajectory (position, velocity, attitude with sigmas).
+
+    Exit code 4: the trajectory is written but the quality checks failed (docs/qc.md).
+    """
     from georef.fusion.ins import InsInputs, solve_ins
     from georef.io.generic import read_gnss_csv, read_imu_csv, write_trajectory_csv
+    from georef.pipeline import solution_figures
+    from georef.qc import assess
 
     if method not in ("rts", "ekf"):
         raise typer.BadParameter(f"--method must be rts or ekf for georef fuse, got {method!r}")
     cfg = load_config(config) if config else ProcessingConfig()
     cfg = cfg.updated(lever_arm_gnss=_triple(gnss_lever_arm, "--gnss-lever-arm", "metres"),
-                      gnss_sigma=_triple(gnss_sigma, "--gnss-sigma", "metres"), imu_preset=imu_preset)
+                      gnss_sigma=_triple(gnss_sigma, "--gnss-sigma", "metres"), imu_preset=imu_preset,
+                      gnss_latency=gnss_latency, vehicle=vehicle)
     progress, step = _stage_progress(quiet, total=3)
     with progress if progress is not None else contextlib.nullcontext():
         step("reading inputs")
@@ -349,12 +424,18 @@ def fuse(
                         smooth=method == "rts")
         step("writing trajectory")
         write_trajectory_csv(nav, output)
+    verdict = assess(nav, cfg=cfg)
     if not quiet:
         used = int((nav.gnss.status >= 1).sum())
         rejected = nav.gnss.rejected_lines
         named = f" (lines {', '.join(map(str, rejected[:10]))})" if rejected else ""
-        out.print(f"{int(nav.valid.sum())} trajectory rows -> {output}; GNSS {len(fixes)} fixes, {used} used, "
-                  f"{len(rejected)} rejected{named}; heading from {nav.info.get('heading_source')}")
+        out.print(f"{int(nav.valid.sum())} trajectory rows -> {escape(str(output))}; GNSS {len(fixes)} fixes, "
+                  f"{used} used, {len(rejected)} rejected{named}", highlight=False, soft_wrap=True)
+        for what, value in _filter_rows(solution_figures(nav, cfg)):
+            out.print(f"{what}: {value}", highlight=False, soft_wrap=True)
+    _print_verdict(verdict, quiet)
+    if not verdict.passed:
+        raise typer.Exit(code=EXIT_QC_FAILED)
 
 
 @app.command()
@@ -387,7 +468,8 @@ def attitude(
     with atomic_write(output) as handle:
         table.to_csv(handle, index=False, float_format="%.8g", lineterminator="\n")
     if not quiet:
-        out.print(f"{len(table)} samples -> {output} ({method}{', magnetometer' if mag is not None else ''})")
+        out.print(f"{len(table)} samples -> {escape(str(output))} ({escape(method)}"
+                  f"{', magnetometer' if mag is not None else ''})", highlight=False)
 
 
 @app.command()
@@ -401,9 +483,13 @@ def batch(
     scheduler: Annotated[str | None, typer.Option(help="Dask scheduler address, e.g. tcp://host:8786; default: a "
                                                        "LocalCluster on this machine.")] = None,
     workers: Annotated[int, typer.Option(help="LocalCluster worker processes (one thread each).")] = 2,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors and failed quality "
+                                                               "checks.")] = False,
 ) -> None:
-    """Process many flights, one Dask task each; a failed flight is reported and the others go on."""
+    """Process many flights, one Dask task each; a failed flight is reported and the others go on.
+
+    Exit code 2 when every flight failed to run, 4 when a flight's quality checks failed (docs/qc.md).
+    """
     from georef.batch import discover, run_batch
 
     jobs = discover(source)
@@ -418,22 +504,42 @@ def batch(
 
             def done(row: dict) -> None:
                 progress.advance(task)
-                progress.update(task, description=f"{row['flight']}: {row['status']}")
+                progress.update(task, description=f"{escape(str(row['flight']))}: {row['status']}")
 
             summary = run_batch(jobs, output, method=method, scheduler=scheduler, workers=workers, on_done=done)
     if not quiet:
-        table = Table(title=f"georef batch -> {output}/batch_summary.csv", title_justify="left")
-        for column in ("flight", "status", "method", "frames", "rejected_fixes", "runtime_s", "message"):
+        shown = ("flight", "status", "method", "frames", "rejected_fixes", "qc", "runtime_s", "message")
+        table = Table(title=f"georef batch -> {escape(str(output))}/batch_summary.csv", title_justify="left")
+        for column in shown:
             table.add_column(column)
         for row in summary.itertuples(index=False):
-            table.add_row(*(str(getattr(row, c)) if getattr(row, c) is not None else "" for c in
-                            ("flight", "status", "method", "frames", "rejected_fixes", "runtime_s", "message")))
+            table.add_row(*(escape(_cell(getattr(row, c))) for c in shown))
         out.print(table)
     failed = summary[summary["status"] != "ok"]
     for row in failed.itertuples(index=False):
-        console.print(f"[bold red]failed:[/] {row.flight}: {row.message}", highlight=False)
+        console.print(f"[bold red]failed:[/] {escape(str(row.flight))}: {escape(str(row.message))}", highlight=False)
+    qc_failed = summary[summary["qc"].fillna("").astype(str).str.startswith("failed")]
+    for row in qc_failed.itertuples(index=False):
+        console.print(f"[bold red]QC failed:[/] {escape(str(row.flight))}: {escape(str(row.qc_details))}",
+                      highlight=False)
     if len(failed) == len(summary):
-        raise typer.Exit(code=2)
+        raise typer.Exit(code=EXIT_USER_ERROR)
+    if len(qc_failed):
+        raise typer.Exit(code=EXIT_QC_FAILED)
+
+
+def _cell(value: Any) -> str:
+    """A summary value as table text: empty for None/NaN/NA."""
+    if value is None:
+        return ""
+    try:
+        import pandas as pd
+
+        if pd.isna(value):
+            return ""
+    except (TypeError, ValueError):
+        pass
+    return str(value)
 
 
 @app.command()
@@ -446,7 +552,7 @@ def info(
     from georef.io.pos import read_pos
 
     log = read_pos(pos, gnss_rate_hz=gnss_rate)
-    table = Table(title=str(pos), show_header=False, title_justify="left")
+    table = Table(title=escape(str(pos)), show_header=False, title_justify="left")
     table.add_column("what", style="bold")
     table.add_column("value")
     table.add_row("rows", f"{len(log)} at {log.sample_rate_hz:.2f} Hz")
@@ -456,10 +562,10 @@ def info(
     for start, end in log.gnss.gaps()[:10]:
         table.add_row("GNSS gap", f"{start:.0f} - {end:.0f} s")
     table.add_row("time quirks repaired", str(log.time_repairs.n_quirks))
-    table.add_row("columns found", ", ".join(f"{role}={name}" for role, name in log.column_names.items()))
+    table.add_row("columns found", escape(", ".join(f"{role}={name}" for role, name in log.column_names.items())))
     out.print(table)
     for notice in log.notices:
-        console.print(f"[yellow]notice:[/] {notice}", highlight=False)
+        console.print(f"[yellow]notice:[/] {escape(str(notice))}", highlight=False)
 
 
 @app.command("build-kernels")
@@ -481,7 +587,7 @@ def build_kernels(
             continue
         with console.status(f"compiling the {name} kernel"):
             path = build(name)
-        console.print(f"built {path}", highlight=False)
+        console.print(f"built {escape(str(path))}", highlight=False)
 
 
 @app.command()
@@ -499,7 +605,7 @@ def evaluate(
     estimate = read_eo_csv(eo)
     reference = pd.read_csv(truth)
     errors = frame_errors(estimate, reference)
-    table = Table(title=f"{eo} against {truth}", title_justify="left")
+    table = Table(title=escape(f"{eo} against {truth}"), title_justify="left")
     table.add_column("figure")
     table.add_column("value", justify="right")
     for name, value in accuracy(errors).items():

@@ -83,6 +83,12 @@ class Alignment:
     n_fixes: int
     variance_factor: float     # a-posteriori variance factor of the GNSS fit (1 = as the sigmas say)
     static_start_s: float      # length of the quasi-static start [s] used for the gyro bias, 0 if none
+    #: the POS unit's yaw-origin drift rate and its sigma [rad/s] when its IACC gives it, else None
+    unit_drift: tuple[float, float] | None = None
+    #: the start heading's sigma [rad] when it came from the unit's yaw and its IACC-recovered origin
+    heading_prior_sigma: float | None = None
+    #: that recovery (georef.fusion.yaw_offset.YawOffsetSolution), for reports
+    yaw_offset: object = None
 
 
 @dataclass

@@ -93,6 +93,9 @@ CV_PERIOD_S = 40.0
 CV_HOLD_S = 10.0
 CV_MIN_HELD = 5
 WHITE_DISTINCT = 3.0
+#: the datasheet's white noise replaces the spectral floor only when its held-out log-likelihood is higher by
+#: this much (a likelihood ratio of e^2); when the two predict alike, the floor keeps the sigmas honest
+CV_MARGIN = 2.0
 #: fractions of an EM step tried in turn until one keeps the likelihood
 EM_STEP_FRACTIONS = (1.0, 0.5, 0.25)
 #: an EM step may lower the innovation log-likelihood by at most this much and still be kept
@@ -308,6 +311,8 @@ def initial_alignment(inputs: InsInputs, cfg: ProcessingConfig, start_time: floa
     if result.observable:
         result.heading_source = (f"motion (optimisation-based alignment over {result.window[1] - result.window[0]:.0f}"
                                  f" s, heading sigma {np.degrees(result.heading_sigma):.2f} deg)")
+        if start_time is None:
+            _unit_yaw_origin(inputs, cfg, result)
         return result
     heading, heading_sigma, source = _other_heading(inputs, cfg, result)
     if heading is None:
@@ -323,6 +328,37 @@ def initial_alignment(inputs: InsInputs, cfg: ProcessingConfig, start_time: floa
     result.heading_sigma = heading_sigma
     result.heading_source = source
     return result
+
+
+def _unit_yaw_origin(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignment) -> None:
+    """With the POS unit's level accelerations (IACC): its yaw origin recovered against GNSS over the whole flight
+    (:mod:`georef.fusion.yaw_offset`), which the filter does not otherwise see (it has the unit's yaw only
+    relative to an origin). When it agrees with the motion's heading (within 3 sigma), the start heading becomes
+    the unit's yaw plus the recovered origin with its sigma, and the origin's drift rate its prior; otherwise the
+    alignment is left as it is."""
+    if inputs.unit_rpy is None or inputs.iacc is None:
+        return
+    from georef.fusion.yaw_offset import recover_yaw_offset
+
+    gnss = inputs.gnss
+    try:
+        solution = recover_yaw_offset(gnss.time, gnss.lat_deg, gnss.lon_deg, gnss.height, inputs.time, inputs.iacc,
+                                      inputs.unit_rpy, np.asarray(cfg.lever_arm_gnss), cfg.gnss_sigma[:2],
+                                      window=cfg.yaw_window, step=cfg.yaw_step, bandwidth=cfg.yaw_bandwidth)
+    except ValueError:
+        return
+    row = alignment.start_row
+    offset, offset_sigma = solution.at(np.array([inputs.time[row]]))
+    heading = float(wrap_pi(inputs.unit_rpy[row, 2] + offset[0]))
+    sigma = max(float(offset_sigma[0]), np.radians(0.05))
+    roll, pitch, yaw = dcm_to_euler(alignment.C_b_n)
+    if abs(float(wrap_pi(heading - yaw))) > 3.0 * np.hypot(sigma, alignment.heading_sigma):
+        return
+    alignment.C_b_n = euler_to_dcm(roll, pitch, heading)
+    alignment.heading_prior_sigma = sigma
+    alignment.unit_drift = (float(solution.drift), max(float(solution.drift_sigma), np.radians(0.05) / 60.0))
+    alignment.yaw_offset = solution
+    alignment.heading_source += f"; unit yaw origin from IACC ({np.degrees(sigma):.2f} deg)"
 
 
 def _datasheet_bias_sigma(cfg: ProcessingConfig) -> tuple[float, float]:
@@ -385,9 +421,16 @@ def _initial_state(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignmen
                             np.radians([START_LEVEL_SIGMA_DEG, START_LEVEL_SIGMA_DEG, START_HEADING_SIGMA_DEG]) ** 2,
                             np.full(3, sigma_g**2), np.full(3, sigma_a**2)])
     P0[np.arange(15), np.arange(15)] = np.maximum(fit, prior)
+    if alignment.heading_prior_sigma is not None:
+        # the heading from the unit's yaw and its origin recovered from IACC: information of its own
+        P0[layout.ATT + 2, layout.ATT + 2] = alignment.heading_prior_sigma**2
     level = np.radians(cfg.unit_level_sigma)
     P0[layout.UNIT_LEVEL, layout.UNIT_LEVEL] = P0[layout.UNIT_LEVEL + 1, layout.UNIT_LEVEL + 1] = level**2
     P0[layout.UNIT_DRIFT, layout.UNIT_DRIFT] = (np.radians(2.0) / 60.0) ** 2
+    if alignment.unit_drift is not None:
+        # the unit's yaw-origin drift recovered from its own level accelerations (IACC) and GNSS
+        x0[layout.X_UNIT_DRIFT] = alignment.unit_drift[0]
+        P0[layout.UNIT_DRIFT, layout.UNIT_DRIFT] = alignment.unit_drift[1] ** 2
     if inputs.unit_rpy is not None:
         row = alignment.start_row
         roll, pitch, yaw = dcm_to_euler(alignment.C_b_n)
@@ -765,6 +808,9 @@ class _Estimation:
                 continue
             score, mean_d2, count = self.cross_validate(noise) if len(candidates) > 1 else (0.0, np.nan, 0)
             self.cv_scores.append((noise.q_vel_h, score, mean_d2, count))
+            # the spectral floor (first) is what the data show; the datasheet has to predict clearly better
+            if best_score > -np.inf:
+                score -= CV_MARGIN
             if score > best_score:
                 best, best_score, best_state = noise, score, self.start_state
             self.start_state = state

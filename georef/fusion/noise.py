@@ -29,8 +29,10 @@ from georef.imu_errors import ImuErrorModel
 
 #: prior sigma [m/s] of a ground vehicle's lateral and vertical body velocity (non-holonomic constraint)
 NHC_SIGMA = 0.1
-#: the spectral floor of the IMU data is read above this frequency [Hz] (a vehicle's own motion is below it)
+#: the spectral floor of the IMU data is read above this frequency [Hz] (a vehicle's own motion is below it),
+#: from at most this many 4-s segments spread over the log
 MOTION_BAND_HZ = 2.0
+MAX_SEGMENTS = 64
 #: pseudo-residuals of the prior in the MAP step
 PRIOR_WEIGHT = 10.0
 #: one update changes a block by at most this factor
@@ -144,25 +146,33 @@ def spectral_white_noise(time: np.ndarray, gyro: np.ndarray, accel: np.ndarray,
                          motion_hz: float = MOTION_BAND_HZ) -> tuple[float, float, float, float]:
     """White-noise densities the IMU data show, vibration included, at the row rate: the floor of their spectrum.
 
-    Welch periodograms (4 s segments, linear detrend) of each axis at the row rate; the density is the median of
-    the bins from ``motion_hz`` (above a vehicle's own motion) to 0.9 x Nyquist, halved (two-sided). The median
-    ignores narrow-band lines (a rotor's blade-pass frequency and its aliases), which integrate to almost
-    nothing; broad-band vibration that does act like white noise raises it. Returns (q_vel_h, q_vel_v
-    [m^2/s^3], q_att_h, q_att_v [rad^2/s]), with the body x, y axes taken as horizontal.
+    Periodograms of 4 s segments (each with its straight line removed and a Hann window; up to
+    ``MAX_SEGMENTS`` of them spread over the log) averaged per axis; the density is the median of the bins from
+    ``motion_hz`` (above a vehicle's own motion) to 0.9 x Nyquist, halved (two-sided). The median ignores
+    narrow-band lines (a rotor's blade-pass frequency and its aliases), which integrate to almost nothing;
+    broad-band vibration that does act like white noise raises it. Returns (q_vel_h, q_vel_v [m^2/s^3], q_att_h,
+    q_att_v [rad^2/s]), with the body x, y axes taken as horizontal. (Welch's method, written out with numpy:
+    scipy's per-segment detrending took 0.44 s on a 15-minute log.)
     """
-    from scipy.signal import welch
-
     dt = float(np.median(np.diff(time)))
     rate = 1.0 / dt
-    segment = int(min(len(time), round(4.0 * rate)))
-    if segment < 32 or 0.9 * rate / 2.0 <= motion_hz:
+    length = int(round(4.0 * rate))
+    count = min(len(time) // max(length, 1), MAX_SEGMENTS)
+    if length < 32 or count < 1 or 0.9 * rate / 2.0 <= motion_hz:
         return 0.0, 0.0, 0.0, 0.0
-    freq, acc = welch(accel, fs=rate, nperseg=segment, detrend="linear", axis=0)
-    _, gyr = welch(gyro, fs=rate, nperseg=segment, detrend="linear", axis=0)
+    starts = np.linspace(0, len(time) - length, count).astype(int)
+    index = starts[:, None] + np.arange(length)[None, :]
+    data = np.concatenate([accel, gyro], axis=1)[index]          # (segments, length, 6)
+    x = np.linspace(-1.0, 1.0, length)
+    slope = np.einsum("k,skc->sc", x, data) / np.dot(x, x)
+    data = data - data.mean(axis=1, keepdims=True) - slope[:, None, :] * x[None, :, None]
+    window = np.hanning(length)
+    spectrum = np.abs(np.fft.rfft(data * window[None, :, None], axis=1)) ** 2
+    density = spectrum.mean(axis=0) * 2.0 / (rate * np.sum(window**2))  # one-sided PSD
+    freq = np.fft.rfftfreq(length, dt)
     band = (freq >= motion_hz) & (freq <= 0.9 * rate / 2.0)
-    acc_floor = np.median(acc[band], axis=0) / 2.0
-    gyr_floor = np.median(gyr[band], axis=0) / 2.0
-    return (float(acc_floor[:2].mean()), float(acc_floor[2]), float(gyr_floor[:2].mean()), float(gyr_floor[2]))
+    floor = np.median(density[band], axis=0) / 2.0
+    return (float(floor[:2].mean()), float(floor[2]), float(floor[3:5].mean()), float(floor[5]))
 
 
 def data_prior(prior: NoiseModel, time: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> NoiseModel:

@@ -1,0 +1,431 @@
+"""Quality checks of a finished run, with a verdict (``docs/qc.md``).
+
+One job: judge a navigation solution (and the EO table made from it) after the fact, and say in words a user
+can act on what looks wrong. Nothing here changes the solution.
+
+>>> verdict = assess(result.nav, result.table, result.config)
+>>> verdict.passed, [check.message for check in verdict.failures]
+
+Every :class:`Check` has a status ``"pass"``, ``"warn"`` or ``"fail"``; the :class:`Verdict` has passed when no
+check failed. ``georef process`` and ``georef fuse`` exit with code 4 when it did not (the outputs are written
+all the same). Times in messages are the log's own time scale [s] (UTC second of day for POS.txt), with the
+time since the start of the navigation where that helps to find the place.
+
+Checks (thresholds are module constants, their reasons in ``docs/qc.md``):
+
+* ``innovations``: the mean normalised innovation squared (NIS) of the GNSS fixes the filter used, against the
+  chi-square distribution with ``3 n`` degrees of freedom (full-state filters only);
+* ``innovation bursts``: the worst 60-s window of the NIS;
+* ``rejected fixes``: the share of processed GNSS fixes the gate rejected;
+* ``lever arm`` and ``latency``: what the data say about the GNSS lever arm and time tags, against the
+  configuration (full-state filters, when the calibration pass ran);
+* ``heading``: where the heading came from;
+* ``restarts``, ``IMU gaps``: re-alignments after divergences, spans without IMU data;
+* ``frames``: exposures outside the navigation span (a camera clock off by hours);
+* ``GNSS at the ends``: exposures after the last GNSS fix or before the first (inertial only).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from scipy import stats
+
+from georef.eo import FLAG_AFTER_LAST_FIX, FLAG_BEFORE_FIRST_FIX, FLAG_OUTSIDE
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from georef.config import ProcessingConfig
+    from georef.fusion.solution import NavSolution
+
+PASS, WARN, FAIL = "pass", "warn", "fail"
+STATUSES = (PASS, WARN, FAIL)
+
+#: the mean NIS must lie inside the two-sided band of this probability of chi-square(3 n) / n ...
+NIS_BAND_PROBABILITY = 0.999
+#: ... widened by this fraction on either side (the filter's linearisation, the fitted noise model, the gate's
+#: truncation of the distribution: the model is an approximation)
+NIS_BAND_WIDENING = 0.25
+#: the worst window of this length [s] warns when its mean NIS exceeds NIS_WINDOW_LIMIT (with at least
+#: NIS_WINDOW_MIN_FIXES fixes in it)
+NIS_WINDOW_S = 60.0
+NIS_WINDOW_LIMIT = 10.0
+NIS_WINDOW_MIN_FIXES = 5
+#: fewer used fixes than this: too few to judge the innovations' level
+NIS_MIN_FIXES = 10
+#: share of the processed GNSS fixes rejected by the gate that fails / warns
+REJECTED_FAIL = 0.05
+REJECTED_WARN = 0.01
+#: rejected fix times listed at most
+LIST_AT_MOST = 10
+#: lever arm: a difference fails when it exceeds LEVER_SIGMAS * sqrt(sigma_est^2 + LEVER_FLOOR_M^2) and also the
+#: estimates' resolution LEVER_RESOLUTION_M + LEVER_RESOLUTION_REL * |given| (on simulated cars the estimate
+#: differs from the truth by up to about 1 m: it trades off against attitude and latency)
+LEVER_SIGMAS = 3.0
+LEVER_FLOOR_M = 0.05
+LEVER_RESOLUTION_M = 0.3
+LEVER_RESOLUTION_REL = 0.2
+#: latency: warns when the estimate exceeds LATENCY_SIGMAS sigma and LATENCY_MIN_S [s]
+LATENCY_SIGMAS = 3.0
+LATENCY_MIN_S = 0.02
+#: frames: more than this share outside the navigation span fails
+OUTSIDE_FAIL_SHARE = 0.5
+#: the default chi-square gate of a 3-D GNSS innovation (ProcessingConfig.gate_chi2)
+DEFAULT_GATE = 16.27
+
+AXES = ("x", "y", "z")
+AXIS_WORDS = {"x": "forward", "y": "right", "z": "down"}
+
+
+@dataclass(frozen=True)
+class Check:
+    """One check: its ``name``, ``status`` (``"pass"``, ``"warn"`` or ``"fail"``) and a message saying what was
+    found (figures with units) and, when it is not a pass, what to do."""
+
+    name: str
+    status: str
+    message: str
+
+    def __post_init__(self) -> None:
+        if self.status not in STATUSES:
+            raise ValueError(f"check status must be one of {', '.join(STATUSES)}, got {self.status!r}")
+
+    def line(self) -> str:
+        """``"fail lever arm: ..."``: one line of text."""
+        return f"{self.status} {self.name}: {self.message}"
+
+    def to_dict(self) -> dict[str, str]:
+        """Plain data (for a Dask worker's result, JSON, a CSV cell)."""
+        return {"name": self.name, "status": self.status, "message": self.message}
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The checks of one run; it has ``passed`` when none failed."""
+
+    checks: tuple[Check, ...]
+
+    @property
+    def passed(self) -> bool:
+        return not self.failures
+
+    @property
+    def failures(self) -> list[Check]:
+        return [c for c in self.checks if c.status == FAIL]
+
+    @property
+    def warnings(self) -> list[Check]:
+        return [c for c in self.checks if c.status == WARN]
+
+    def short(self) -> str:
+        """``"passed"``, ``"passed (warnings: restarts)"`` or ``"failed: lever arm, frames"``."""
+        if not self.passed:
+            return "failed: " + ", ".join(c.name for c in self.failures)
+        if self.warnings:
+            return "passed (warnings: " + ", ".join(c.name for c in self.warnings) + ")"
+        return "passed"
+
+    def details(self) -> str:
+        """The failing and warning checks, one line each (empty when every check passed)."""
+        return "\n".join(c.line() for c in self.checks if c.status != PASS)
+
+    def __str__(self) -> str:
+        return f"QC {self.short()}" + (f"\n{self.details()}" if self.details() else "")
+
+    def to_dicts(self) -> list[dict[str, str]]:
+        return [c.to_dict() for c in self.checks]
+
+    @classmethod
+    def from_dicts(cls, rows: Iterable[dict[str, Any]]) -> Verdict:
+        return cls(tuple(Check(str(r["name"]), str(r["status"]), str(r["message"])) for r in rows))
+
+
+# ---- helpers ---------------------------------------------------------------------------------------------------
+def _times(values: Iterable[float], at_most: int = LIST_AT_MOST) -> str:
+    """``"12.0 s, 14.5 s and 3 more"`` [s]."""
+    values = list(values)
+    text = ", ".join(f"{v:.1f} s" for v in values[:at_most])
+    return text + (f" and {len(values) - at_most} more" if len(values) > at_most else "")
+
+
+def _nav_start(nav: NavSolution) -> float:
+    """Time [s] of the first row with a solution (the first row when none has)."""
+    valid = np.flatnonzero(nav.valid)
+    return float(nav.time[valid[0]] if len(valid) else nav.time[0])
+
+
+def _gate(nav: NavSolution, cfg: ProcessingConfig | None) -> float:
+    """The chi-square gate of the run (3 degrees of freedom)."""
+    if nav.diagnostics is not None:
+        return float(nav.diagnostics.gate_chi2)
+    return float(cfg.gate_chi2) if cfg is not None else DEFAULT_GATE
+
+
+# ---- the checks --------------------------------------------------------------------------------------------------
+def nis_band(n: int) -> tuple[float, float]:
+    """The accepted range of the mean NIS of ``n`` fixes: the central ``NIS_BAND_PROBABILITY`` band of
+    chi-square(3 n) / n, widened by ``NIS_BAND_WIDENING`` on either side (lower edge times 0.75, upper times 1.25)."""
+    tail = 0.5 * (1.0 - NIS_BAND_PROBABILITY)
+    lo = float(stats.chi2.ppf(tail, 3 * n)) / n
+    hi = float(stats.chi2.isf(tail, 3 * n)) / n
+    return lo * (1.0 - NIS_BAND_WIDENING), hi * (1.0 + NIS_BAND_WIDENING)
+
+
+def check_innovations(nav: NavSolution) -> list[Check]:
+    """``innovations`` (mean NIS of the used fixes against chi-square(3 n)) and ``innovation bursts`` (the worst
+    ``NIS_WINDOW_S`` window). Full-state filters only (their NIS uses the full innovation covariance)."""
+    if nav.diagnostics is None:
+        return []
+    nis = np.asarray(nav.diagnostics.nis, float)
+    used = (nav.gnss.status == 1) & np.isfinite(nis)
+    n = int(used.sum())
+    if n == 0:
+        return [Check("innovations", FAIL, "the filter used no GNSS fix: the solution is inertial only. Check "
+                      "that the GNSS fixes lie inside the IMU's time span and their positions are sane "
+                      "(georef info POS.txt).")]
+    if n < NIS_MIN_FIXES:
+        return [Check("innovations", WARN, f"only {n} GNSS fixes used: too few to judge the noise model")]
+    value = float(np.mean(nis[used]))
+    lo, hi = nis_band(n)
+    figures = f"mean normalised innovation squared {value:.2f} over {n} used GNSS fixes (3 expected, accepted " \
+              f"{lo:.2f} to {hi:.2f})"
+    if value > hi:
+        checks = [Check("innovations", FAIL, f"{figures}: the fixes disagree with the navigation more than the "
+                        "fitted model explains. Look for a wrong lever arm (--gnss-lever-arm), GNSS time tags off "
+                        "(--gnss-latency), fixes of mixed quality (float/DGPS), or a vehicle the model does not "
+                        "fit (--vehicle); the innovations plot of --report shows where.")]
+    elif value < lo:
+        checks = [Check("innovations", FAIL, f"{figures}: the fixes agree with the navigation far better than the "
+                        "model says: the sigmas are too pessimistic. Check --gnss-sigma and the fixes' own sigma "
+                        "columns, and whether the GNSS positions were smoothed or interpolated before logging.")]
+    else:
+        checks = [Check("innovations", PASS, figures)]
+    # the worst window
+    t = nav.gnss.time[used]
+    x = nis[used]
+    order = np.argsort(t)
+    t, x = t[order], x[order]
+    cum = np.concatenate([[0.0], np.cumsum(x)])
+    end = np.searchsorted(t, t + NIS_WINDOW_S, side="left")
+    count = end - np.arange(len(t))
+    # whole windows only (a window cut short by the end of the data is a few fixes, not a minute); a log shorter
+    # than one window is one window
+    period = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    whole = t + NIS_WINDOW_S <= t[-1] + period
+    if not whole.any():
+        whole[0] = True
+    ok = (count >= NIS_WINDOW_MIN_FIXES) & whole
+    if ok.any():
+        means = np.where(ok, (cum[end] - cum[:len(t)]) / np.maximum(count, 1), -np.inf)
+        i = int(np.argmax(means))
+        worst, j = float(means[i]), int(end[i]) - 1
+        start = _nav_start(nav)
+        span = (f"worst {NIS_WINDOW_S:.0f} s: mean normalised innovation squared {worst:.1f} over {count[i]} fixes "
+                f"from {t[i]:.1f} to {t[j]:.1f} s ({t[i] - start:.0f} to {t[j] - start:.0f} s after the start)")
+        if worst > NIS_WINDOW_LIMIT:
+            checks.append(Check("innovation bursts", WARN, f"{span}, over {NIS_WINDOW_LIMIT:g}: the fixes or the "
+                                "motion there do not fit the model (multipath, a float solution, a jump after an "
+                                "outage, a hard manoeuvre); check the frames of that span."))
+        else:
+            checks.append(Check("innovation bursts", PASS, span))
+    return checks
+
+
+def check_rejected(nav: NavSolution, cfg: ProcessingConfig | None = None) -> Check | None:
+    """``rejected fixes``: the share of processed fixes (status 0 or 1) the gate rejected."""
+    status = nav.gnss.status
+    processed = int((status >= 0).sum())
+    if processed == 0:
+        return None
+    rejected = np.flatnonzero(status == 0)
+    share = len(rejected) / processed
+    gate = _gate(nav, cfg)
+    alarm = float(stats.chi2.sf(gate, 3))
+    figures = (f"{len(rejected)} of {processed} processed GNSS fixes rejected ({100 * share:.1f} %; the gate "
+               f"chi-square {gate:g} rejects {100 * alarm:.2f} % of good fixes)")
+    if len(rejected):
+        listed = [f"{nav.gnss.time[i]:.1f} s (line {int(nav.gnss.line[i])})" for i in rejected[:LIST_AT_MOST]]
+        figures += ": " + ", ".join(listed) + (f" and {len(rejected) - LIST_AT_MOST} more"
+                                               if len(rejected) > LIST_AT_MOST else "")
+    advice = (". Check the GNSS quality at these times (multipath, float or autonomous fixes), --gnss-sigma, the "
+              "lever arm (--gnss-lever-arm) and the time tags (--gnss-latency).")
+    if share > REJECTED_FAIL:
+        return Check("rejected fixes", FAIL, figures + advice)
+    if share > REJECTED_WARN:
+        return Check("rejected fixes", WARN, figures + advice)
+    return Check("rejected fixes", PASS, figures)
+
+
+def check_lever_arm(nav: NavSolution) -> Check | None:
+    """``lever arm``: the calibration pass's lever arm against the configured one, per body axis."""
+    diagnostics = nav.diagnostics
+    if diagnostics is None or diagnostics.calibration is None:
+        return None
+    calibration = diagnostics.calibration
+    estimate = np.asarray(calibration.lever_arm, float)
+    sigma = np.asarray(calibration.lever_arm_sigma, float)
+    given = np.asarray(diagnostics.lever_arm_given, float)
+    problems = []
+    for k, axis in enumerate(AXES):
+        difference = abs(estimate[k] - given[k])
+        noise = LEVER_SIGMAS * float(np.hypot(sigma[k], LEVER_FLOOR_M))
+        resolution = LEVER_RESOLUTION_M + LEVER_RESOLUTION_REL * abs(given[k])
+        if np.isfinite(difference) and difference > noise and difference > resolution:
+            problems.append(f"GNSS lever arm {axis} ({AXIS_WORDS[axis]}): the data put the antenna at "
+                            f"{estimate[k]:.2f} +- {sigma[k]:.2f} m, the configuration says {given[k]:.2f} m")
+    both = ", ".join(f"{e:.2f} +- {s:.2f}" for e, s in zip(estimate, sigma, strict=True))
+    if problems:
+        return Check("lever arm", FAIL, "; ".join(problems) + f" (estimate x, y, z: {both} m). Check for a typo, "
+                     "the sign (body axes x forward, y right, z down; z negative when the antenna is above the IMU) "
+                     "and the axis order in --gnss-lever-arm / [mounting] lever_arm_gnss.")
+    given_text = ", ".join(f"{g:.2f}" for g in given)
+    return Check("lever arm", PASS, f"the GNSS lever arm the data show ({both} m) agrees with the configured "
+                 f"{given_text} m")
+
+
+def check_latency(nav: NavSolution, cfg: ProcessingConfig | None = None) -> Check | None:
+    """``latency``: the calibration pass's GNSS time-tag latency, when the user gave none (it is then not
+    applied). Without ``cfg``, a latency applied as 0 counts as not given."""
+    diagnostics = nav.diagnostics
+    if diagnostics is None or diagnostics.calibration is None:
+        return None
+    given = cfg.gnss_latency if cfg is not None else (diagnostics.latency_applied or None)
+    if given is not None:
+        return None
+    value = float(diagnostics.calibration.latency)
+    sigma = float(diagnostics.calibration.latency_sigma)
+    figures = f"the data show a GNSS time-tag latency of {value:.3f} +- {sigma:.3f} s"
+    if abs(value) > LATENCY_SIGMAS * sigma and abs(value) > LATENCY_MIN_S:
+        return Check("latency", WARN, f"{figures} (the fix measured that long before its time tag); it was not "
+                     f"applied. If the receiver's time tags are known to lag, apply it with --gnss-latency "
+                     f"{value:.3f} ([gnss] gnss_latency) and check that the innovations improve; an estimate that "
+                     "trades off against the lever arm's forward component is not worth applying.")
+    return Check("latency", PASS, f"{figures}: not significant (not applied)")
+
+
+def check_heading(nav: NavSolution) -> Check | None:
+    """``heading``: never observable fails; a magnetometer's or an autopilot's heading warns."""
+    diagnostics = nav.diagnostics
+    if diagnostics is None:
+        return None
+    source = str(diagnostics.heading_source)
+    sigma = float(np.degrees(diagnostics.alignment.heading_sigma))
+    if source.startswith("none"):
+        return Check("heading", FAIL, f"{source}. The yaw of every frame is undetermined. Give the heading another "
+                     "way: the POS unit's own yaw with IACC (POS.txt), a magnetometer (imu.csv mag_x..z) or an "
+                     "autopilot's yaw (imu.csv yaw); or include turns or accelerations in the log.")
+    if source.startswith(("magnetometer", "autopilot")):
+        return Check("heading", WARN, f"heading from the {source.split(' ')[0]} (sigma {sigma:.1f} deg): the motion "
+                     "never showed the heading, so the yaw is only as good as that source (declination, hard iron, "
+                     "the autopilot's own errors). Check the yaw column of the EO table before using it.")
+    return Check("heading", PASS, f"heading from the {source}")
+
+
+def check_restarts(nav: NavSolution) -> Check | None:
+    """``restarts``: re-alignments after a divergence (the smoother does not carry information across them)."""
+    diagnostics = nav.diagnostics
+    if diagnostics is None:
+        return None
+    restarts = list(diagnostics.restarts)
+    if not restarts:
+        return Check("restarts", PASS, "the filter ran without a restart")
+    listed = "; ".join(f"at {r.time:.1f} s: {r.reason}" for r in restarts[:LIST_AT_MOST])
+    more = f"; and {len(restarts) - LIST_AT_MOST} more" if len(restarts) > LIST_AT_MOST else ""
+    return Check("restarts", WARN, f"{len(restarts)} restart(s) after a divergence ({listed}{more}). Frames just "
+                 "before and after them are less certain; look for bad GNSS fixes or IMU data there.")
+
+
+def check_imu_gaps(nav: NavSolution) -> Check | None:
+    """``IMU gaps``: spans without real IMU data (time gaps or a logger's interpolated dropouts)."""
+    diagnostics = nav.diagnostics
+    if diagnostics is None:
+        return None
+    gaps = list(diagnostics.imu_gaps)
+    if not gaps:
+        return Check("IMU gaps", PASS, "no gap in the IMU data")
+    lengths = np.array([b - a for a, b in gaps])
+    k = int(np.argmax(lengths))
+    return Check("IMU gaps", WARN, f"{len(gaps)} span(s) without IMU data, {lengths.sum():.2f} s in all (longest "
+                 f"{lengths[k]:.2f} s from {gaps[k][0]:.1f} s; starts at {_times(a for a, _ in gaps)}): bridged "
+                 "with the process noise of unknown motion, so frames there are less accurate. Check the logger "
+                 "(dropped samples, a full disk, interpolated rows).")
+
+
+def check_frames(nav: NavSolution, table: pd.DataFrame) -> Check:
+    """``frames``: exposures outside the navigation span. More than half (or all) fails: the camera's clock does
+    not match the POS log's (a wrong UTC offset, a different day)."""
+    n = len(table)
+    if n == 0:
+        return Check("frames", FAIL, "the exposure file holds no frame")
+    flags = table["flag"].astype(str)
+    outside = flags.str.contains(FLAG_OUTSIDE, regex=False).to_numpy()
+    count = int(outside.sum())
+    valid = np.flatnonzero(nav.valid)
+    if len(valid) == 0:
+        return Check("frames", FAIL, f"no frame of {n} could be georeferenced: the filter produced no solution")
+    t0, t1 = float(nav.time[valid[0]]), float(nav.time[valid[-1]])
+    span = f"the navigation span {t0:.1f} to {t1:.1f} s"
+    if count == 0:
+        return Check("frames", PASS, f"all {n} frames inside {span}")
+    frames = table["frame"].astype(str).to_numpy()[outside]
+    listed = ", ".join(frames[:LIST_AT_MOST]) + (" ..." if count > LIST_AT_MOST else "")
+    if count > OUTSIDE_FAIL_SHARE * n:
+        # how far the exposures are off: their median time against the span's centre (a clock off by a UTC
+        # offset shows as whole hours)
+        shift = float(np.median(table["time"].to_numpy(float)) - 0.5 * (t0 + t1))
+        where = "later" if shift > 0 else "earlier"
+        return Check("frames", FAIL, f"{count} of {n} frames lie outside {span} (frames {listed}); the exposures "
+                     f"lie {abs(shift):.0f} s ({abs(shift) / 3600:.2f} h) {where} than the navigation (median frame "
+                     "time against the span's centre). The camera's clock does not match the POS log's: check "
+                     "--camera-utc-offset (hours, raw camera logs), --camera-time-offset (seconds) and that the two "
+                     "files are of the same flight.")
+    return Check("frames", WARN, f"{count} of {n} frames lie outside {span} (frames {listed}): their rows are "
+                 "written with empty values and flagged. Exposures before the log started or after it ended "
+                 "cannot be georeferenced.")
+
+
+def check_gnss_ends(nav: NavSolution, table: pd.DataFrame) -> Check:
+    """``GNSS at the ends``: frames after the last GNSS fix or before the first one (inertial only there)."""
+    flags = table["flag"].astype(str)
+    after = flags.str.contains(FLAG_AFTER_LAST_FIX, regex=False).to_numpy()
+    before = flags.str.contains(FLAG_BEFORE_FIRST_FIX, regex=False).to_numpy()
+    if not after.any() and not before.any():
+        return Check("GNSS at the ends", PASS, "no frame before the first GNSS fix or after the last one")
+    time = table["time"].to_numpy(float)
+    frames = table["frame"].astype(str).to_numpy()
+    first, last = float(np.min(nav.gnss.time)), float(np.max(nav.gnss.time))
+    parts = []
+    if after.any():
+        longest = float(time[after].max() - last)
+        parts.append(f"{int(after.sum())} frame(s) after the last GNSS fix at {last:.1f} s (frames "
+                     f"{frames[after][0]} to {frames[after][-1]}, up to {longest:.0f} s of inertial-only navigation)")
+    if before.any():
+        longest = float(first - time[before].min())
+        parts.append(f"{int(before.sum())} frame(s) before the first GNSS fix at {first:.1f} s (frames "
+                     f"{frames[before][0]} to {frames[before][-1]}, up to {longest:.0f} s of inertial-only "
+                     "navigation)")
+    return Check("GNSS at the ends", WARN, "; ".join(parts) + ": they are flagged in the EO table and their "
+                 "sigmas grow with the time since the fix. Check those frames, or log GNSS over the whole flight.")
+
+
+def assess(nav: NavSolution, table: pd.DataFrame | None = None, cfg: ProcessingConfig | None = None) -> Verdict:
+    """Every check that applies to ``nav`` (any method), the EO ``table`` (``georef process``) and ``cfg``.
+
+    The full-state filters (``rts``, ``ekf``: ``nav.diagnostics`` set) get every check; ``axis`` and ``graph``
+    the rejected fixes and, with a table, the frame checks.
+    """
+    checks: list[Check | None] = [*check_innovations(nav), check_rejected(nav, cfg), check_lever_arm(nav),
+                                  check_latency(nav, cfg), check_heading(nav), check_restarts(nav),
+                                  check_imu_gaps(nav)]
+    if table is not None:
+        checks += [check_frames(nav, table), check_gnss_ends(nav, table)]
+    return Verdict(tuple(c for c in checks if c is not None))
+
+
+def assess_result(result: Any) -> Verdict:
+    """:func:`assess` of a :class:`georef.pipeline.ProcessResult`."""
+    return assess(result.nav, result.table, result.config)

@@ -1,0 +1,269 @@
+"""Quality checks with a verdict (georef.qc) on real runs of simulated flights, each processed once here."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from georef.eo import FLAG_AFTER_LAST_FIX, FLAG_BEFORE_FIRST_FIX, FLAG_OUTSIDE
+from georef.fusion.ins import Calibration, Restart
+from georef.pipeline import ProcessResult, process
+from georef.qc import (
+    LEVER_FLOOR_M,
+    LEVER_RESOLUTION_M,
+    LEVER_RESOLUTION_REL,
+    NIS_WINDOW_LIMIT,
+    Check,
+    Verdict,
+    assess,
+    assess_result,
+    nis_band,
+)
+from georef.sim.files import processing_config_for, write_flight
+from georef.sim.flight import SimConfig, simulate
+from georef.sim.sensors import GnssModel
+
+TRUE_LEVER = (0.45, 0.15, -1.65)
+
+
+@pytest.fixture(scope="module")
+def clean(flight_dir, flight_config) -> ProcessResult:
+    """The default 3-minute flight (conftest's, seed 1) with its own installation."""
+    _, paths = flight_dir
+    return process(paths["POS.txt"], paths["Kamera.txt"], flight_config)
+
+
+@pytest.fixture(scope="module")
+def typo(flight_dir, flight_config) -> ProcessResult:
+    """The same flight with a 45 m typo in the GNSS lever arm's x."""
+    _, paths = flight_dir
+    assert tuple(flight_config.lever_arm_gnss) == TRUE_LEVER
+    return process(paths["POS.txt"], paths["Kamera.txt"], flight_config.updated(lever_arm_gnss=(45.0, 0.15, -1.65)))
+
+
+@pytest.fixture(scope="module")
+def shifted(flight_dir, flight_config, tmp_path_factory) -> ProcessResult:
+    """The same flight with a camera file two hours off (a wrong UTC offset)."""
+    _, paths = flight_dir
+    kamera = pd.read_csv(paths["Kamera.txt"], sep="\t")
+    kamera["Time"] += 7200
+    path = tmp_path_factory.mktemp("shifted") / "Kamera.txt"
+    kamera.to_csv(path, sep="\t", index=False)
+    return process(paths["POS.txt"], path, flight_config)
+
+
+@pytest.fixture(scope="module")
+def outage_to_end(tmp_path_factory) -> ProcessResult:
+    """A 3-minute flight whose GNSS stops 150 s after the start, for good."""
+    flight = simulate(SimConfig(seed=1, gnss=GnssModel(outages=[(150.0, 100.0)])))
+    paths = write_flight(flight, tmp_path_factory.mktemp("outage"))
+    return process(paths["POS.txt"], paths["Kamera.txt"], processing_config_for(flight))
+
+
+def _by_name(verdict: Verdict) -> dict[str, Check]:
+    return {check.name: check for check in verdict.checks}
+
+
+def _with(result: ProcessResult, gnss=None, **diagnostics) -> Verdict:
+    """The verdict of ``result`` with some of its diagnostics (or its GNSS use) replaced."""
+    nav = result.nav
+    changed = dataclasses.replace(nav, diagnostics=dataclasses.replace(nav.diagnostics, **diagnostics),
+                                  gnss=gnss if gnss is not None else nav.gnss)
+    return assess(changed, result.table, result.config)
+
+
+# ---- real runs -----------------------------------------------------------------------------------------------
+def test_clean_flight_passes(clean):
+    verdict = assess_result(clean)
+    checks = _by_name(verdict)
+    assert verdict.passed, verdict
+    assert {"innovations", "innovation bursts", "rejected fixes", "lever arm", "latency", "heading", "restarts",
+            "IMU gaps", "frames", "GNSS at the ends"} <= set(checks)
+    for name in ("innovations", "lever arm", "heading", "restarts", "IMU gaps", "frames", "GNSS at the ends"):
+        assert checks[name].status == "pass", checks[name]
+    # the figures in the message are the run's own
+    used = clean.nav.gnss.status == 1
+    mean = float(np.mean(clean.nav.diagnostics.nis[used]))
+    assert f"{mean:.2f} over {int(used.sum())} used GNSS fixes" in checks["innovations"].message
+    assert "agrees with the configured 0.45, 0.15, -1.65 m" in checks["lever arm"].message
+    assert verdict.short() in ("passed", f"passed (warnings: {', '.join(c.name for c in verdict.warnings)})")
+
+
+def test_lever_arm_typo_fails_naming_the_lever_arm(typo):
+    verdict = assess_result(typo)
+    assert not verdict.passed
+    failure = _by_name(verdict)["lever arm"]
+    assert failure.status == "fail"
+    assert "GNSS lever arm x (forward): the data put the antenna at" in failure.message
+    assert "the configuration says 45.00 m" in failure.message and "--gnss-lever-arm" in failure.message
+    # only x is wrong: y and z agree with the data
+    assert "lever arm y" not in failure.message and "lever arm z" not in failure.message
+    estimate = typo.nav.diagnostics.calibration.lever_arm[0]
+    assert abs(estimate - 45.0) > LEVER_RESOLUTION_M + LEVER_RESOLUTION_REL * 45.0
+    assert verdict.short().startswith("failed: ") and "lever arm" in verdict.short()
+
+
+def test_camera_two_hours_off_fails_on_frames(shifted):
+    assert shifted.table["flag"].str.contains(FLAG_OUTSIDE).all()
+    verdict = assess_result(shifted)
+    checks = _by_name(verdict)
+    assert not verdict.passed and [c.name for c in verdict.failures] == ["frames"]
+    message = checks["frames"].message
+    assert f"{len(shifted.table)} of {len(shifted.table)} frames lie outside" in message
+    # the shift itself, for the user to recognise: two hours
+    match = re.search(r"the exposures lie (\d+) s \((\d+\.\d+) h\) later than the navigation", message)
+    assert match and abs(int(match.group(1)) - 7200) < 30 and match.group(2) == "2.00", message
+    assert "--camera-utc-offset" in message and "--camera-time-offset" in message
+    assert checks["lever arm"].status == "pass"
+
+
+def test_gnss_outage_to_the_end_flags_frames_and_warns(outage_to_end):
+    table, gnss = outage_to_end.table, outage_to_end.nav.gnss
+    last = float(gnss.time[-1])
+    assert outage_to_end.log.time[-1] - last > 25.0        # the outage runs to the end of the log
+    after = table["time"].to_numpy() > last + 2.5
+    flagged = table["flag"].str.contains(FLAG_AFTER_LAST_FIX).to_numpy()
+    assert after.sum() > 60
+    np.testing.assert_array_equal(flagged, after)
+    assert not table["flag"].str.contains(FLAG_BEFORE_FIRST_FIX).any()
+    # the flag says how long the frame has been inertial only
+    row = table[after].iloc[-1]
+    assert f"{FLAG_AFTER_LAST_FIX} ({row['time'] - last:.0f} s of inertial only)" in row["flag"]
+    assert outage_to_end.summary()["frames_after_last_fix"] == int(after.sum())
+    verdict = assess_result(outage_to_end)
+    check = _by_name(verdict)["GNSS at the ends"]
+    assert check.status == "warn"
+    assert check.message.startswith(f"{int(after.sum())} frame(s) after the last GNSS fix at {last:.1f} s")
+    assert verdict.passed, verdict
+
+
+def test_axis_method_gets_the_checks_that_apply(flight_dir, flight_config):
+    _, paths = flight_dir
+    result = process(paths["POS.txt"], paths["Kamera.txt"], flight_config.updated(method="axis"))
+    verdict = assess_result(result)
+    assert [c.name for c in verdict.checks] == ["rejected fixes", "frames", "GNSS at the ends"]
+    assert verdict.passed, verdict
+
+
+# ---- thresholds, on the clean run with one thing changed ---------------------------------------------------------
+def test_innovation_level_fails_both_ways(clean):
+    nis = clean.nav.diagnostics.nis
+    n = int((clean.nav.gnss.status == 1).sum())
+    lo, hi = nis_band(n)
+    assert 1.5 < lo < 2.5 and 3.8 < hi < 5.0, (lo, hi)
+    high = _by_name(_with(clean, nis=nis * 2.0))["innovations"]
+    low = _by_name(_with(clean, nis=nis * 0.4))["innovations"]
+    assert high.status == "fail" and "more than the fitted model explains" in high.message
+    assert low.status == "fail" and "too pessimistic" in low.message
+
+
+def test_a_burst_of_large_innovations_warns_with_its_span(clean):
+    nav = clean.nav
+    used = np.flatnonzero(nav.gnss.status == 1)
+    t = nav.gnss.time
+    burst = used[(t[used] >= t[used[60]]) & (t[used] < t[used[60]] + 20.0)]
+    nis = nav.diagnostics.nis.copy()
+    nis[burst] = 40.0
+    check = _by_name(_with(clean, nis=nis))["innovation bursts"]
+    assert check.status == "warn"
+    window = re.search(r"mean normalised innovation squared ([\d.]+) over \d+ fixes from ([\d.]+) to ([\d.]+) s",
+                       check.message)
+    assert window, check.message
+    mean, start, end = (float(v) for v in window.groups())
+    assert mean > NIS_WINDOW_LIMIT
+    assert start <= t[burst[0]] and end >= t[burst[-1]] and end - start <= 60.0
+
+
+def test_rejected_fixes_warn_then_fail(clean):
+    gnss = clean.nav.gnss
+    used = np.flatnonzero(gnss.status == 1)
+    processed = int((gnss.status >= 0).sum())
+    for count, status in ((3, "warn"), (12, "fail")):
+        changed = gnss.status.copy()
+        changed[used[10:10 + count]] = 0
+        check = _by_name(_with(clean, gnss=dataclasses.replace(gnss, status=changed)))["rejected fixes"]
+        assert check.status == status, check
+        assert check.message.startswith(f"{count} of {processed} processed GNSS fixes rejected "
+                                        f"({100 * count / processed:.1f} %; the gate chi-square 16.27 rejects 0.10 %")
+        assert f"{gnss.time[used[10]]:.1f} s (line {int(gnss.line[used[10]])})" in check.message
+    assert "and 2 more" in check.message        # 12 rejected, 10 listed
+
+
+def test_lever_arm_threshold_needs_both_sigma_and_resolution(clean):
+    given = np.asarray(TRUE_LEVER)
+
+    def status(delta_y: float, sigma: float) -> str:
+        calibration = Calibration(lever_arm=given + [0.0, delta_y, 0.0], lever_arm_sigma=np.full(3, sigma),
+                                  latency=0.0, latency_sigma=0.01)
+        return _by_name(_with(clean, calibration=calibration, lever_arm_given=given))["lever arm"].status
+
+    resolution = LEVER_RESOLUTION_M + LEVER_RESOLUTION_REL * 0.15
+    assert status(resolution - 0.02, 0.01) == "pass"          # many sigmas off, but within the resolution
+    assert status(resolution + 0.02, 0.01) == "fail"
+    wide = 0.5
+    assert status(2.5 * np.hypot(wide, LEVER_FLOOR_M), wide) == "pass"   # beyond the resolution, within 3 sigma
+    assert status(3.5 * np.hypot(wide, LEVER_FLOOR_M), wide) == "fail"
+
+
+def test_latency_warns_only_when_significant_and_not_given(clean):
+    diagnostics = clean.nav.diagnostics
+
+    def check(latency: float, sigma: float, cfg=None) -> Check | None:
+        calibration = dataclasses.replace(diagnostics.calibration, latency=latency, latency_sigma=sigma)
+        nav = dataclasses.replace(clean.nav, diagnostics=dataclasses.replace(diagnostics, calibration=calibration))
+        return _by_name(assess(nav, clean.table, cfg or clean.config)).get("latency")
+
+    assert clean.config.gnss_latency is None
+    significant = check(0.15, 0.02)
+    assert significant.status == "warn" and "--gnss-latency 0.150" in significant.message
+    assert check(0.015, 0.001).status == "pass"       # many sigmas, but under 0.02 s
+    assert check(0.05, 0.02).status == "pass"         # 2.5 sigma
+    assert check(0.15, 0.02, clean.config.updated(gnss_latency=0.0)) is None   # given by the user
+
+
+def test_heading_restarts_and_imu_gaps(clean):
+    none = _by_name(_with(clean, heading_source="none: the heading is not observable from the motion"))["heading"]
+    assert none.status == "fail" and "magnetometer" in none.message
+    magnetometer = _by_name(_with(clean, heading_source="magnetometer (declination from the configuration, "
+                                                        "sigma 10 deg)"))["heading"]
+    assert magnetometer.status == "warn"
+    restarts = _by_name(_with(clean, restarts=[Restart(row=4000, time=24593.0, reason="4 GNSS fixes in a row "
+                                                                                       "rejected")]))["restarts"]
+    assert restarts.status == "warn" and "at 24593.0 s: 4 GNSS fixes in a row rejected" in restarts.message
+    gaps = _by_name(_with(clean, imu_gaps=[(24550.0, 24551.5), (24600.0, 24600.3)]))["IMU gaps"]
+    assert gaps.status == "warn" and gaps.message.startswith("2 span(s) without IMU data, 1.80 s in all")
+    assert not _with(clean, heading_source="none: no heading").passed
+
+
+def test_some_frames_outside_warn(clean):
+    table = clean.table.copy()
+    table.loc[:2, "flag"] = FLAG_OUTSIDE
+    check = _by_name(assess(clean.nav, table, clean.config))["frames"]
+    assert check.status == "warn" and f"3 of {len(table)} frames lie outside" in check.message
+    assert "(frames 1, 2, 3)" in check.message
+    table.loc[: len(table) // 2 + 1, "flag"] = FLAG_OUTSIDE
+    assert _by_name(assess(clean.nav, table, clean.config))["frames"].status == "fail"
+
+
+def test_verdict_is_plain_data():
+    verdict = Verdict((Check("frames", "fail", "all frames outside"), Check("restarts", "warn", "one"),
+                       Check("heading", "pass", "motion")))
+    assert Verdict.from_dicts(verdict.to_dicts()) == verdict
+    assert verdict.short() == "failed: frames" and not verdict.passed
+    assert verdict.details() == "fail frames: all frames outside\nwarn restarts: one"
+    assert Verdict(verdict.checks[1:]).short() == "passed (warnings: restarts)"
+    with pytest.raises(ValueError, match="status"):
+        Check("x", "ok", "no such status")
+
+
+def test_docs_name_every_check():
+    text = (Path(__file__).resolve().parents[1] / "docs" / "qc.md").read_text()
+    for name in ("innovations", "innovation bursts", "rejected fixes", "lever arm", "latency", "heading",
+                 "restarts", "IMU gaps", "frames", "GNSS at the ends"):
+        assert f"`{name}`" in text, name
+    assert "exit code" in text.lower() and "| 4 |" in text
