@@ -6,7 +6,8 @@ STAMP := $(VENV)/.installed
 # the filters' loops compiled ahead of time (georef/kernels.py); rebuilt when their sources change
 KERNELS := $(VENV)/.kernels
 KERNEL_SOURCES := georef/kernels.py georef/fusion/ins_kernel.py georef/fusion/strapdown.py georef/frames/kernels.py \
-	georef/fusion/axis_kernel.py
+	georef/fusion/axis_kernel.py georef/fusion/alignment_kernel.py georef/frames/earth.py \
+	georef/fusion/ins_layout.py
 
 .PHONY: demo test lint bench clean browser
 

@@ -49,9 +49,13 @@ class KernelFunction:
     returns: tuple[Slot, ...]
 
     def numba_signature(self) -> str:
-        """The numba signature text ``Tuple((...))(...)`` that ``numba.pycc`` compiles."""
+        """The numba signature text ``Tuple((...))(...)``, or ``type(...)`` for one return value, that
+        ``numba.pycc`` compiles."""
+        arguments = ", ".join(_numba_type(slot) for slot in self.args)
+        if len(self.returns) == 1:
+            return f"{_numba_type(self.returns[0])}({arguments})"
         returns = ", ".join(_numba_type(slot) for slot in self.returns)
-        return f"Tuple(({returns}))({', '.join(_numba_type(slot) for slot in self.args)})"
+        return f"Tuple(({returns}))({arguments})"
 
 
 @dataclass(frozen=True)
@@ -83,7 +87,8 @@ KERNELS: dict[str, KernelSpec] = {
          "finish_rows": KernelFunction(
             args=(F1, F2, I1, F2, F2, F3, F3),
             returns=(B1, F2, F2, F3, F2, F2, F2))},
-        ("fusion/ins_kernel.py", "fusion/strapdown.py", "frames/kernels.py", "frames/earth.py")),
+        ("fusion/ins_kernel.py", "fusion/ins_layout.py", "fusion/strapdown.py", "frames/kernels.py",
+         "frames/earth.py")),
     "align": KernelSpec(
         "georef.fusion.alignment_kernel",
         {"preintegrate": KernelFunction(

@@ -21,7 +21,7 @@ from georef.eo import FLAG_AFTER_LAST_FIX, FLAG_BEFORE_FIRST_FIX, FLAG_OUTSIDE, 
 from georef.exposure import interpolate_to_exposures
 from georef.frames.rotations import wrap_pi
 from georef.fusion import axis, ins
-from georef.fusion.ins_kernel import UNIT_YAW
+from georef.fusion.ins_layout import UNIT_YAW
 from georef.fusion.solution import NavSolution
 from georef.io.camera import Exposures, read_camera_log, read_kamera
 from georef.io.errors import GeorefError, InputNotice

@@ -38,7 +38,7 @@ from georef.config import ProcessingConfig
 from georef.frames import C_e_n, C_n_e, dcm_to_quat, euler_to_dcm, geodetic_to_ecef
 from georef.frames.mounting import lever_arm_ecef
 from georef.frames.rotations import dcm_to_euler, euler_error_jacobian, wrap_pi
-from georef.fusion import ins_kernel as layout
+from georef.fusion import ins_layout as layout
 from georef.fusion.alignment import Alignment, align
 from georef.fusion.noise import (
     NHC_BLOCKS,
@@ -341,10 +341,14 @@ def _unit_yaw_origin(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignm
     from georef.fusion.yaw_offset import recover_yaw_offset
 
     gnss = inputs.gnss
+    # Windows side by side (step = window), not overlapping: the origin and its drift are what is wanted here,
+    # not a track of the offset, and the windows' estimates are then independent as the fit assumes. A quarter
+    # of the windows: 0.05 s instead of 0.2 s on a 15-minute flight.
     try:
         solution = recover_yaw_offset(gnss.time, gnss.lat_deg, gnss.lon_deg, gnss.height, inputs.time, inputs.iacc,
                                       inputs.unit_rpy, np.asarray(cfg.lever_arm_gnss), cfg.gnss_sigma[:2],
-                                      window=cfg.yaw_window, step=cfg.yaw_step, bandwidth=cfg.yaw_bandwidth)
+                                      window=cfg.yaw_window, step=cfg.yaw_step,
+                                      bandwidth=cfg.yaw_bandwidth)
     except ValueError:
         return
     row = alignment.start_row

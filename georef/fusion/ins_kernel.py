@@ -1,16 +1,6 @@
 """Compiled loosely coupled INS/GNSS error-state EKF, its RTS smoother, and the noise statistics of an EM step.
 
-Layouts (named indices below, one order for the error state and the nominal state):
-
-* error state, estimate minus truth: ``δr`` NED position [m] (POS), ``δv`` NED velocity [m/s] (VEL), attitude
-  ``φ`` [rad] with ``Ĉ_b_n = (I - [φ x]) C_b_n`` (ATT), gyro bias [rad/s] (BG), accelerometer bias [m/s^2] (BA),
-  the POS unit's own roll/pitch errors [rad] (UNIT_LEVEL, Gauss-Markov), the offset ``d`` of its yaw origin
-  [rad] (UNIT_YAW) and that offset's drift rate [rad/s] (UNIT_DRIFT); with ``NX_CAL`` states also the GNSS lever
-  arm [m, body] (LEVER) and the GNSS time-tag latency [s] (LATENCY), random constants;
-* nominal state: the same order with latitude, longitude [rad] and ellipsoidal height [m] for the position and
-  the body-to-NED quaternion (scalar first) for the attitude (``X_*`` indices, ``NS`` entries). The lever arm
-  and latency are always carried in the nominal state; they are estimated only when the filter has ``NX_CAL``
-  states.
+Layouts: :mod:`georef.fusion.ins_layout` (named indices, one order for the error and the nominal state).
 
 The forward filter (:func:`ekf_forward`) mechanises every IMU row and propagates the covariance at *covariance
 epochs* (every ``stride`` rows and at every update): :func:`propagate` builds F at the epoch's mean attitude and
@@ -45,97 +35,81 @@ from georef.frames.kernels import (
     radii,
     transport_rate,
 )
+from georef.fusion.ins_layout import (  # noqa: F401  (the kernel's public names, as before)
+    ATT,
+    AUX_NHC,
+    AUX_UNIT,
+    B_ATT_H,
+    B_ATT_V,
+    B_BA,
+    B_BG,
+    B_GNSS_H,
+    B_GNSS_V,
+    B_NHC,
+    B_OUTAGE,
+    B_UNIT_DRIFT,
+    B_UNIT_LEVEL,
+    B_UNIT_R_LEVEL,
+    B_UNIT_R_YAW,
+    B_VEL_H,
+    B_VEL_V,
+    BA,
+    BG,
+    DRIFT_REJECTS,
+    DRIFT_WINDOW,
+    FIX_REJECTED,
+    FIX_UNUSED,
+    FIX_USED,
+    INV_TAU_A,
+    INV_TAU_G,
+    INV_TAU_UNIT,
+    LATENCY,
+    LEVER,
+    N_BLOCKS,
+    N_NOISE,
+    NHC_GATE,
+    NHC_LEVER,
+    NS,
+    NX_CAL,
+    NX_NAV,
+    POS,
+    Q_ATT_H,
+    Q_ATT_V,
+    Q_BA,
+    Q_BG,
+    Q_UNIT_DRIFT,
+    Q_UNIT_LEVEL,
+    Q_VEL_H,
+    Q_VEL_V,
+    R_NHC,
+    R_SCALE_H,
+    R_SCALE_V,
+    R_UNIT_LEVEL,
+    R_UNIT_YAW,
+    REACQUIRE_FIXES,
+    REACQUIRE_GATE,
+    STOP_DIVERGED,
+    STOP_DRIFT,
+    STOP_END,
+    STOP_GAP,
+    UNIT_DRIFT,
+    UNIT_LEVEL,
+    UNIT_YAW,
+    VEL,
+    X_BA,
+    X_BG,
+    X_HGT,
+    X_LAT,
+    X_LATENCY,
+    X_LEVER,
+    X_LON,
+    X_QUAT,
+    X_UNIT_DRIFT,
+    X_UNIT_LEVEL,
+    X_UNIT_YAW,
+    X_VEL,
+)
 from georef.fusion.strapdown import increments, mechanise
-
-# ---- error state ------------------------------------------------------------------------------------------
-POS = 0
-VEL = 3
-ATT = 6
-BG = 9
-BA = 12
-UNIT_LEVEL = 15
-UNIT_YAW = 17
-UNIT_DRIFT = 18
-LEVER = 19
-LATENCY = 22
-NX_NAV = 19
-NX_CAL = 23
-
-# ---- nominal state (same order; quaternion for the attitude) ----------------------------------------------
-X_LAT = 0
-X_LON = 1
-X_HGT = 2
-X_VEL = 3
-X_QUAT = 6
-X_BG = 10
-X_BA = 13
-X_UNIT_LEVEL = 16
-X_UNIT_YAW = 18
-X_UNIT_DRIFT = 19
-X_LEVER = 20
-X_LATENCY = 23
-NS = 24
-
-# ---- noise vector (continuous-time densities, variances and scale factors) --------------------------------
-Q_VEL_H = 0        # m^2/s^3, white specific force, north and east
-Q_VEL_V = 1        # m^2/s^3, down
-Q_ATT_H = 2        # rad^2/s, white angular rate about north and east
-Q_ATT_V = 3        # rad^2/s, about down
-Q_BG = 4           # rad^2/s^3, gyro-bias Gauss-Markov drive
-INV_TAU_G = 5      # 1/s
-Q_BA = 6           # m^2/s^5, accelerometer-bias drive
-INV_TAU_A = 7      # 1/s
-Q_UNIT_LEVEL = 8   # rad^2/s, drive of the unit's roll/pitch errors
-INV_TAU_UNIT = 9   # 1/s
-Q_UNIT_DRIFT = 10  # rad^2/s^3, random walk of the unit's yaw-origin drift rate
-R_UNIT_LEVEL = 11  # rad^2, white noise of the unit's roll and pitch
-R_UNIT_YAW = 12    # rad^2, of its yaw
-R_SCALE_H = 13     # factor on the GNSS north/east variances
-R_SCALE_V = 14     # factor on the GNSS down variance
-R_NHC = 15         # m^2/s^2, non-holonomic constraint: variance of the body's lateral and vertical velocity
-N_NOISE = 16
-
-# ---- noise blocks whose EM statistics the smoother adds up ------------------------------------------------
-B_GNSS_H = 0
-B_GNSS_V = 1
-B_UNIT_R_LEVEL = 2
-B_UNIT_R_YAW = 3
-B_VEL_H = 4
-B_VEL_V = 5
-B_ATT_H = 6
-B_ATT_V = 7
-B_BG = 8
-B_BA = 9
-B_UNIT_LEVEL = 10
-B_UNIT_DRIFT = 11
-B_NHC = 12
-B_OUTAGE = 13      # all process noise inside GNSS outages, pooled (a scale on top of the other blocks)
-N_BLOCKS = 14
-
-# ---- kinds of the auxiliary (non-GNSS) updates ------------------------------------------------------------
-AUX_UNIT = 0       # the unit's roll, pitch, yaw (3)
-AUX_NHC = 1        # a ground vehicle's zero lateral and vertical body velocity (2)
-#: how far from the IMU the point is at which a ground vehicle has no lateral or vertical velocity [m]
-NHC_LEVER = 2.0
-#: chi-square(2) gate of the NHC update (1 - 1e-20)
-NHC_GATE = 92.1
-
-# ---- GNSS fix status and why a forward pass stopped -------------------------------------------------------
-FIX_UNUSED = -1
-FIX_REJECTED = 0
-FIX_USED = 1
-STOP_END = 0
-STOP_DIVERGED = 1
-STOP_GAP = 2
-STOP_DRIFT = 3
-#: rejected fixes in a row, starting within DRIFT_WINDOW fixes after a GNSS outage or an IMU gap, that stop a
-#: pass with STOP_DRIFT
-DRIFT_REJECTS = 2
-DRIFT_WINDOW = 5
-#: the first REACQUIRE_FIXES fixes after a GNSS outage or an IMU gap are gated only at REACQUIRE_GATE
-#: (chi-square(3) 1 - 1e-20): they correct the drift of the gap, which is what a normal gate would reject
-REACQUIRE_FIXES = 3
-REACQUIRE_GATE = 97.0
 
 
 @njit(cache=True)

@@ -24,7 +24,7 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from georef.fusion import ins_kernel as layout
+from georef.fusion import ins_layout as layout
 from georef.imu_errors import ImuErrorModel
 
 #: prior sigma [m/s] of a ground vehicle's lateral and vertical body velocity (non-holonomic constraint)
