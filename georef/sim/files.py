@@ -37,6 +37,15 @@ def processing_config_for(flight: SimulatedFlight, crs: str | None = None) -> Pr
                             gnss_rate_hz=cfg.gnss.rate_hz, crs=crs, imu_preset=cfg.imu_preset, **unit)
 
 
+def installation_config(flight: SimulatedFlight, crs: str | None = None) -> ProcessingConfig:
+    """Only what a user knows of the installation: lever arms, boresight, the GNSS rate of the log and the
+    output CRS. Everything else, the IMU's noise and biases, the GNSS sigmas, the unit's errors, stays at the
+    defaults; the tests and benchmarks of the full-state filters run with this (no tuning to the simulator)."""
+    cfg = flight.config
+    return ProcessingConfig(lever_arm_gnss=cfg.lever_arm_gnss_m, lever_arm_camera=cfg.lever_arm_camera_m,
+                            boresight=cfg.boresight_deg, gnss_rate_hz=cfg.gnss.rate_hz, crs=crs)
+
+
 def write_flight(flight: SimulatedFlight, folder: Path | str, crs: str | None = None) -> dict[str, Path]:
     """Write ``POS.txt``, ``Kamera.txt``, ``truth.csv`` and ``flight.toml`` into ``folder``."""
     folder = Path(folder)
