@@ -30,6 +30,7 @@ FLAG_ORDER = "time earlier than previous frame"
 #: inertial only at the ends of the log: "after the last GNSS fix (12 s of inertial only)"
 FLAG_AFTER_LAST_FIX = "after the last GNSS fix"
 FLAG_BEFORE_FIRST_FIX = "before the first GNSS fix"
+FLAG_NO_SIGMA = "no valid sigma (the solution's covariance is broken here; do not use)"
 
 
 def _flags(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, outage_min_s: float) -> np.ndarray:
@@ -83,13 +84,17 @@ def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpoc
             att_cov = states.att_cov_n[inside]
             lever_var = np.einsum("nij,njk,nik->ni", S, att_cov, S)
             J = euler_error_jacobian(roll, pitch, yaw)
-            euler_sigma = np.sqrt(np.einsum("nij,njk,nik->ni", J, att_cov, J))
+            euler_var = np.einsum("nij,njk,nik->ni", J, att_cov, J)
+            euler_sigma = np.sqrt(np.where(euler_var >= 0.0, euler_var, np.nan))
         else:
             # Euler sigmas taken as NED tilt sigmas (small roll and pitch)
             att_var = states.att_sigma[inside] ** 2
             lever_var = np.einsum("nij,nj->ni", S**2, att_var)
             euler_sigma = states.att_sigma[inside]
-        pos_sigma = np.sqrt(states.pos_var_n[inside] + lever_var)
+        pos_var = states.pos_var_n[inside] + lever_var
+        # a negative or missing variance (a numerically broken smoother) gives no sigma and a flag, never a NaN
+        # that looks like a number was attempted
+        pos_sigma = np.sqrt(np.where(pos_var >= 0.0, pos_var, np.nan))
         v_n = np.einsum("nij,nj->ni", C_e_n(lat_i, lon_i), states.v_e[inside])
         track = np.degrees(np.arctan2(v_n[:, 1], v_n[:, 0]))
         yaw_deg = np.degrees(yaw)
@@ -120,5 +125,10 @@ def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpoc
             grid["kappa"][inside] = np.degrees(kappa)
         for name, values in grid.items():
             table[name] = values
-    table["flag"] = _flags(exposures, states, gnss, outage_min_s)
+    flags = _flags(exposures, states, gnss, outage_min_s)
+    sigmas = table[["sigma_n", "sigma_e", "sigma_u", "sigma_roll", "sigma_pitch", "sigma_yaw"]].to_numpy()
+    broken = states.inside & ~np.all(np.isfinite(sigmas), axis=1)
+    for i in np.flatnonzero(broken):
+        flags[i] = f"{flags[i]}; {FLAG_NO_SIGMA}" if flags[i] else FLAG_NO_SIGMA
+    table["flag"] = flags
     return table

@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy.special import chdtrc, chdtri  # chi-square tails; scipy.stats costs 0.2-0.4 s of import
 
-from georef.eo import FLAG_AFTER_LAST_FIX, FLAG_BEFORE_FIRST_FIX, FLAG_OUTSIDE
+from georef.eo import FLAG_AFTER_LAST_FIX, FLAG_BEFORE_FIRST_FIX, FLAG_NO_SIGMA, FLAG_OUTSIDE
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -66,6 +66,8 @@ LIST_AT_MOST = 10
 #: estimates' resolution LEVER_RESOLUTION_M + LEVER_RESOLUTION_REL * |given| (on simulated cars the estimate
 #: differs from the truth by up to about 1 m: it trades off against attitude and latency)
 LEVER_SIGMAS = 3.0
+#: a yaw sigma under this share of the only heading source's (magnetometer, autopilot) is spurious
+SPURIOUS_HEADING_SHARE = 0.5
 LEVER_FLOOR_M = 0.05
 LEVER_RESOLUTION_M = 0.3
 LEVER_RESOLUTION_REL = 0.2
@@ -319,6 +321,14 @@ def check_heading(nav: NavSolution) -> Check | None:
                      "way: the POS unit's own yaw with IACC (POS.txt), a magnetometer (imu.csv mag_x..z) or an "
                      "autopilot's yaw (imu.csv yaw); or include turns or accelerations in the log.")
     if source.startswith(("magnetometer", "autopilot")):
+        valid = np.asarray(nav.valid, bool)
+        claimed = float(np.degrees(np.median(nav.att_sigma[valid, 2]))) if valid.any() else np.nan
+        if claimed < SPURIOUS_HEADING_SHARE * sigma:
+            # the motion never showed the heading (no window did), so no yaw can be better than the source's
+            return Check("heading", FAIL, f"heading from the {source.split(' ')[0]} (sigma {sigma:.1f} deg), and the "
+                         "motion never showed it, yet the solution claims a yaw sigma of "
+                         f"{claimed:.1f} deg (median): information it cannot have, so neither the yaw nor its sigma "
+                         "can be trusted. Fly turns or accelerations, or give a better heading source.")
         return Check("heading", WARN, f"heading from the {source.split(' ')[0]} (sigma {sigma:.1f} deg): the motion "
                      "never showed the heading, so the yaw is only as good as that source (declination, hard iron, "
                      "the autopilot's own errors). Check the yaw column of the EO table before using it.")
@@ -369,6 +379,14 @@ def check_frames(nav: NavSolution, table: pd.DataFrame) -> Check:
         return Check("frames", FAIL, f"no frame of {n} could be georeferenced: the filter produced no solution")
     t0, t1 = float(nav.time[valid[0]]), float(nav.time[valid[-1]])
     span = f"the navigation span {t0:.1f} to {t1:.1f} s"
+    broken = flags.str.contains(FLAG_NO_SIGMA, regex=False).to_numpy()
+    if broken.any():
+        frames = table["frame"].astype(str).to_numpy()[broken]
+        listed = ", ".join(frames[:LIST_AT_MOST]) + (" ..." if broken.sum() > LIST_AT_MOST else "")
+        return Check("frames", FAIL, f"{int(broken.sum())} of {n} frames have no valid sigma (frames {listed}): the "
+                     "solution's covariance is numerically broken there, so their positions and attitudes cannot "
+                     "be trusted either. Please report it with the data (a bug in georef, or data it does not "
+                     "handle).")
     if count == 0:
         return Check("frames", PASS, f"all {n} frames inside {span}")
     frames = table["frame"].astype(str).to_numpy()[outside]

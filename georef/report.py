@@ -17,7 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from georef.frames import C_e_n, wrap_360  # noqa: E402
+from georef.frames import C_e_n, wrap_360, wrap_pi  # noqa: E402
 from georef.io.atomic import atomic_write  # noqa: E402
 
 SECTIONS = [
@@ -147,7 +147,39 @@ def _biases(result, folder: Path, stem: str) -> str | None:
 
 
 def _yaw_offset(result, folder: Path, stem: str) -> str | None:
-    solution = result.nav.info.get("yaw_offset")
+    """The POS unit's yaw origin: the axis method's followed offset, or the full-state filter's smoothed origin
+    state with its sigma (and the windows recovered from IACC that gave its prior, when there were)."""
+    info = result.nav.info
+    solution = info.get("yaw_offset")
+    diagnostics = result.nav.diagnostics
+    origin = info.get("unit_yaw_origin")
+    if solution is None and diagnostics is not None and origin is not None and diagnostics.unit_aiding:
+        solution = getattr(diagnostics.alignment, "yaw_offset", None)
+        rows = np.flatnonzero(result.nav.valid & np.isfinite(origin))
+        if len(rows) == 0:
+            return None
+        from georef.fusion.ins_layout import UNIT_YAW
+
+        epoch_rows, epoch_sigma = info.get("epoch_rows"), info.get("epoch_sigma")
+        value = np.unwrap(np.asarray(origin, float)[rows])
+        t = _relative_time(result, result.nav.time[rows])
+        fig, ax = plt.subplots(figsize=(11, 4))
+        ax.plot(t, np.degrees(value), color="tab:red", label="smoothed origin (filter state)")
+        if epoch_rows is not None and epoch_sigma is not None and len(epoch_rows):
+            sigma = np.interp(result.nav.time[rows], result.nav.time[epoch_rows], epoch_sigma[:, UNIT_YAW])
+            ax.fill_between(t, np.degrees(value - sigma), np.degrees(value + sigma), color="tab:red", alpha=0.2,
+                            label="1 sigma")
+        if solution is not None:
+            w = solution.windows
+            ok = w.accepted
+            offset = np.degrees(value[0] + wrap_pi(w.offset[ok] - value[0]))
+            ax.errorbar(_relative_time(result, w.time[ok]), offset, yerr=np.degrees(w.sigma[ok]), fmt="o", ms=3,
+                        color="tab:blue", label="IACC windows (prior)")
+        ax.set_xlabel("time since start [s]")
+        ax.set_ylabel("yaw origin [deg]")
+        ax.legend(fontsize=8)
+        ax.set_title("Yaw origin of the POS unit: true yaw = unit yaw + origin")
+        return _save(fig, folder, f"{stem}_yaw_offset.png")
     if solution is None:
         return None
     w = solution.windows

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from georef.sim.files import processing_config_for, write_flight
+from georef.sim.files import installation_config, processing_config_for, write_flight
 from georef.sim.flight import SimConfig, SimulatedFlight, simulate
 
 
@@ -21,3 +21,9 @@ def flight_dir(tmp_path_factory: pytest.TempPathFactory) -> tuple[SimulatedFligh
 @pytest.fixture(scope="session")
 def flight_config(flight_dir):
     return processing_config_for(flight_dir[0])
+
+
+@pytest.fixture(scope="session")
+def flight_defaults(flight_dir):
+    """The defaults with only the flight's installation (lever arms, boresight, GNSS rate): what a new user has."""
+    return installation_config(flight_dir[0])

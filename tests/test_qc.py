@@ -24,7 +24,7 @@ from georef.qc import (
     assess_result,
     nis_band,
 )
-from georef.sim.files import processing_config_for, write_flight
+from georef.sim.files import installation_config, write_flight
 from georef.sim.flight import SimConfig, simulate
 from georef.sim.sensors import GnssModel
 
@@ -32,29 +32,29 @@ TRUE_LEVER = (0.45, 0.15, -1.65)
 
 
 @pytest.fixture(scope="module")
-def clean(flight_dir, flight_config) -> ProcessResult:
-    """The default 3-minute flight (conftest's, seed 1) with its own installation."""
+def clean(flight_dir, flight_defaults) -> ProcessResult:
+    """The default 3-minute flight (conftest's, seed 1) with its installation and the defaults."""
     _, paths = flight_dir
-    return process(paths["POS.txt"], paths["Kamera.txt"], flight_config)
+    return process(paths["POS.txt"], paths["Kamera.txt"], flight_defaults)
 
 
 @pytest.fixture(scope="module")
-def typo(flight_dir, flight_config) -> ProcessResult:
+def typo(flight_dir, flight_defaults) -> ProcessResult:
     """The same flight with a 45 m typo in the GNSS lever arm's x."""
     _, paths = flight_dir
-    assert tuple(flight_config.lever_arm_gnss) == TRUE_LEVER
-    return process(paths["POS.txt"], paths["Kamera.txt"], flight_config.updated(lever_arm_gnss=(45.0, 0.15, -1.65)))
+    assert tuple(flight_defaults.lever_arm_gnss) == TRUE_LEVER
+    return process(paths["POS.txt"], paths["Kamera.txt"], flight_defaults.updated(lever_arm_gnss=(45.0, 0.15, -1.65)))
 
 
 @pytest.fixture(scope="module")
-def shifted(flight_dir, flight_config, tmp_path_factory) -> ProcessResult:
+def shifted(flight_dir, flight_defaults, tmp_path_factory) -> ProcessResult:
     """The same flight with a camera file two hours off (a wrong UTC offset)."""
     _, paths = flight_dir
     kamera = pd.read_csv(paths["Kamera.txt"], sep="\t")
     kamera["Time"] += 7200
     path = tmp_path_factory.mktemp("shifted") / "Kamera.txt"
     kamera.to_csv(path, sep="\t", index=False)
-    return process(paths["POS.txt"], path, flight_config)
+    return process(paths["POS.txt"], path, flight_defaults)
 
 
 @pytest.fixture(scope="module")
@@ -62,7 +62,7 @@ def outage_to_end(tmp_path_factory) -> ProcessResult:
     """A 3-minute flight whose GNSS stops 150 s after the start, for good."""
     flight = simulate(SimConfig(seed=1, gnss=GnssModel(outages=[(150.0, 100.0)])))
     paths = write_flight(flight, tmp_path_factory.mktemp("outage"))
-    return process(paths["POS.txt"], paths["Kamera.txt"], processing_config_for(flight))
+    return process(paths["POS.txt"], paths["Kamera.txt"], installation_config(flight))
 
 
 def _by_name(verdict: Verdict) -> dict[str, Check]:
@@ -229,9 +229,19 @@ def test_latency_warns_only_when_significant_and_not_given(clean):
 def test_heading_restarts_and_imu_gaps(clean):
     none = _by_name(_with(clean, heading_source="none: the heading is not observable from the motion"))["heading"]
     assert none.status == "fail" and "magnetometer" in none.message
-    magnetometer = _by_name(_with(clean, heading_source="magnetometer (declination from the configuration, "
-                                                        "sigma 10 deg)"))["heading"]
-    assert magnetometer.status == "warn"
+    # a magnetometer heading (sigma 10 deg): a warning while the yaw claims no better than that source can give,
+    # a failure when it claims more (the motion never showed the heading, so that information is spurious)
+    nav = clean.nav
+    alignment = dataclasses.replace(nav.diagnostics.alignment, heading_sigma=np.radians(10.0))
+    diagnostics = dataclasses.replace(nav.diagnostics, alignment=alignment,
+                                      heading_source="magnetometer (declination from the configuration, sigma 10 deg)")
+    for yaw_sigma_deg, status in ((9.0, "warn"), (2.0, "fail")):
+        att_sigma = nav.att_sigma.copy()
+        att_sigma[:, 2] = np.radians(yaw_sigma_deg)
+        changed = dataclasses.replace(nav, diagnostics=diagnostics, att_sigma=att_sigma)
+        check = _by_name(assess(changed, clean.table, clean.config))["heading"]
+        assert check.status == status, check
+    assert "claims a yaw sigma of 2.0 deg" in check.message
     restarts = _by_name(_with(clean, restarts=[Restart(row=4000, time=24593.0, reason="4 GNSS fixes in a row "
                                                                                        "rejected")]))["restarts"]
     assert restarts.status == "warn" and "at 24593.0 s: 4 GNSS fixes in a row rejected" in restarts.message
@@ -267,3 +277,14 @@ def test_docs_name_every_check():
                  "restarts", "IMU gaps", "frames", "GNSS at the ends"):
         assert f"`{name}`" in text, name
     assert "exit code" in text.lower() and "| 4 |" in text
+
+
+def test_frames_without_a_valid_sigma_fail(clean):
+    """A frame whose covariance broke (a negative variance gives no sigma) is flagged, and QC fails on it."""
+    from georef.eo import FLAG_NO_SIGMA
+
+    table = clean.table.copy()
+    table.loc[5, "sigma_u"] = np.nan
+    table.loc[5, "flag"] = FLAG_NO_SIGMA
+    check = _by_name(assess(clean.nav, table, clean.config))["frames"]
+    assert check.status == "fail" and check.message.startswith(f"1 of {len(table)} frames have no valid sigma")

@@ -396,6 +396,9 @@ def fuse(
         help="IMU error preset: mems-ivru, mems-consumer, tactical-fog (datasheet values in docs).")] = None,
     gnss_latency: Annotated[float | None, typer.Option(help=GNSS_LATENCY_HELP)] = None,
     vehicle: Annotated[str | None, typer.Option(help=VEHICLE_HELP)] = None,
+    magnetic_declination: Annotated[float | None, typer.Option(
+        help="Magnetic declination [deg, east of true north] for a heading from imu.csv's mag_x..z, used only when "
+             "the motion never shows the heading (default 0).")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors and failed quality "
                                                                "checks.")] = False,
 ) -> None:
@@ -404,7 +407,7 @@ def fuse(
     Exit code 4: the trajectory is written but the quality checks failed (docs/qc.md).
     """
     from georef.fusion.ins import InsInputs, solve_ins
-    from georef.io.generic import read_gnss_csv, read_imu_csv, write_trajectory_csv
+    from georef.io.generic import read_gnss_csv, read_imu_csv, read_imu_heading_sources, write_trajectory_csv
     from georef.pipeline import solution_figures
     from georef.qc import assess
 
@@ -413,15 +416,16 @@ def fuse(
     cfg = load_config(config) if config else ProcessingConfig()
     cfg = cfg.updated(lever_arm_gnss=_triple(gnss_lever_arm, "--gnss-lever-arm", "metres"),
                       gnss_sigma=_triple(gnss_sigma, "--gnss-sigma", "metres"), imu_preset=imu_preset,
-                      gnss_latency=gnss_latency, vehicle=vehicle)
+                      gnss_latency=gnss_latency, vehicle=vehicle, magnetic_declination=magnetic_declination)
     progress, step = _stage_progress(quiet, total=3)
     with progress if progress is not None else contextlib.nullcontext():
         step("reading inputs")
         time_s, gyro, accel, _ = read_imu_csv(imu)
+        mag, autopilot_yaw = read_imu_heading_sources(imu)
         fixes = read_gnss_csv(gnss)
         step(f"fusing ({method})")
-        nav = solve_ins(InsInputs(time=time_s, gyro=gyro, accel=accel, gnss=fixes, source=str(imu)), cfg,
-                        smooth=method == "rts")
+        nav = solve_ins(InsInputs(time=time_s, gyro=gyro, accel=accel, gnss=fixes, source=str(imu), mag=mag,
+                                  autopilot_yaw=autopilot_yaw), cfg, smooth=method == "rts")
         step("writing trajectory")
         write_trajectory_csv(nav, output)
     verdict = assess(nav, cfg=cfg)

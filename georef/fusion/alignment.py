@@ -91,6 +91,8 @@ class Alignment:
     heading_prior_sigma: float | None = None
     #: that recovery (georef.fusion.yaw_offset.YawOffsetSolution), for reports
     yaw_offset: object = None
+    #: the bias prior sigmas the fit kept [rad/s, m/s^2]: the datasheet's, or wider where the data rejected it
+    bias_prior_sigma: tuple[float, float] | None = None
 
 
 @dataclass
@@ -315,6 +317,7 @@ def align(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, fix_time: np.ndarr
 
     t_end_data = min(t[last_row], all_fixes.time[-1])
     tried = []
+    prior = tuple(datasheet_bias_sigma) if datasheet_bias_sigma is not None else (PRIOR_GYRO_BIAS, PRIOR_ACCEL_BIAS)
     for length in (*WINDOWS_S, np.inf):
         t_end = min(t[row0] + length, t_end_data)
         inside = all_fixes.time <= t_end
@@ -324,13 +327,13 @@ def align(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, fix_time: np.ndarr
                        v=all_fixes.v[inside])
         known = _known_terms(fixes, t[row0], lat0, h0, omega_ie)
         win = _Window(t, gyro, accel, row0, fixes, lever, known, omega_ie)
-        solution, prior_held = _fit_window(win, guess_g, guess_a, datasheet_bias_sigma)
-        if not prior_held:
-            datasheet_bias_sigma = None  # rejected once, by the shorter window: the longer ones fit freely
+        # a prior rejected by a shorter window stays rejected for the longer ones
+        solution, prior = _fit_window(win, guess_g, guess_a, prior)
         C0, r0, v0, b_g_fit, b_a_fit, cov, vf, pre = solution
         sig = _heading_sigmas(C0, pre, cov)
         k_best = int(np.argmin(sig))
-        tried.append((C0, r0, v0, b_g_fit, b_a_fit, cov, vf, fixes, sig[k_best], fixes.time[k_best], t_end, sig[0]))
+        tried.append((C0, r0, v0, b_g_fit, b_a_fit, cov, vf, fixes, sig[k_best], fixes.time[k_best], t_end, sig[0],
+                      prior))
         # done when the heading is known at the start; a window that knows it only later is kept in reserve
         if sig[0] < HEADING_SIGMA_OK or t_end >= t_end_data:
             break
@@ -339,7 +342,7 @@ def align(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, fix_time: np.ndarr
     at_start = [w for w in tried if w[11] < HEADING_SIGMA_OK]
     later = [w for w in tried if w[8] < HEADING_SIGMA_OK]
     best = at_start[0] if at_start else later[0] if later else tried[-1]
-    C0, r0, v0, b_g_fit, b_a_fit, cov, vf, fixes, heading_sigma, heading_time, t_end, _ = best
+    C0, r0, v0, b_g_fit, b_a_fit, cov, vf, fixes, heading_sigma, heading_time, t_end, _, prior = best
     # the IMU's geodetic position at the start row from the tangent-frame position
     r_e = geodetic_to_ecef(lat0, lon0, h0) + C_n_e(lat0, lon0) @ r0
     lat_s, lon_s, h_s = ecef_to_geodetic(r_e[None, :])
@@ -353,7 +356,7 @@ def align(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, fix_time: np.ndarr
                      heading_source="motion", observable=bool(heading_sigma < HEADING_SIGMA_OK),
                      heading_sigma=float(heading_sigma), heading_time=float(heading_time),
                      window=(float(t[row0]), float(t_end)), n_fixes=len(fixes.time), variance_factor=vf,
-                     static_start_s=static_length)
+                     static_start_s=static_length, bias_prior_sigma=(float(prior[0]), float(prior[1])))
 
 
 def _fit(win: _Window, bias_g: np.ndarray, bias_a: np.ndarray, heading_turn: float = 0.0,
@@ -368,47 +371,58 @@ def _fit(win: _Window, bias_g: np.ndarray, bias_a: np.ndarray, heading_turn: flo
 
 
 def _fit_window(win: _Window, bias_g: np.ndarray, bias_a: np.ndarray,
-                datasheet_bias_sigma: tuple[float, float] | None):
-    """The window's fit and whether the datasheet's bias prior held.
+                prior: tuple[float, float]) -> tuple[tuple, tuple[float, float]]:
+    """The window's fit with the bias prior ``prior`` (sigmas [rad/s, m/s^2]) where the data allow it, and the
+    prior it used (for the longer windows).
 
-    With the datasheet's bias sigmas as the prior first: a good IMU's biases are not to be invented from a few
-    minutes of data. The prior is then tested against the data: refitted with consumer-grade bias sigmas, the
-    fit's GNSS misfit may fall by no more than chance allows (an F-test on the weighted residuals, the bias
-    freedoms in the numerator, at ``PRIOR_TEST_LEVEL``; the ratio does not depend on how right the GNSS sigmas
-    are). A phone gyro with 0.07 rad/s of turn-on bias, read with a survey unit's datasheet, fitted a
-    helicopter's first minute with a variance factor of 1.7 and the heading 188 deg wrong; the consumer-grade
-    fit had 1.07. When the prior is rejected, or any fit is bad (variance factor over ``VARIANCE_FACTOR_RETRY``)
-    in a window whose motion shows the heading, other starting points are tried (a large gyro bias, a poor
-    linear start); the best fit wins."""
-    first = None
-    if datasheet_bias_sigma is not None:
-        first = _fit(win, bias_g, bias_a, prior_sigma=datasheet_bias_sigma)
-    wide = _fit(win, bias_g, bias_a)
-    prior_held = first is not None and not _prior_rejected(first, wide, len(win.fixes.sigma.reshape(-1)))
-    if prior_held and first[6] <= VARIANCE_FACTOR_RETRY:
-        return first, True
-    best = wide if first is None or not prior_held else min((first, wide), key=lambda s: s[6])
-    if (not prior_held or best[6] > VARIANCE_FACTOR_RETRY) and \
+    The prior starts as the datasheet's: a good IMU's biases are not to be invented from a few minutes of data.
+    It is tested against the data: refitted with consumer-grade bias sigmas, the fit's GNSS misfit may fall by
+    no more than chance allows (an F-test on the weighted residuals, the freed biases in the numerator, at
+    ``PRIOR_TEST_LEVEL``; the ratio does not depend on how right the GNSS sigmas are). A phone gyro with
+    0.07 rad/s of turn-on bias, read with a survey unit's datasheet, fitted a helicopter's first minute with a
+    variance factor of 1.7 and the heading 188 deg wrong; the consumer-grade fit had 1.07. (Freeing only the
+    gyro's prior when that explains the data as well was tried: it kept a hovering multicopter's roll, but lost a
+    phone-IMU helicopter whose accelerometer bias was beyond the datasheet too.) When the prior is rejected, or
+    any fit is bad (variance factor over
+    ``VARIANCE_FACTOR_RETRY``) in a window whose motion shows the heading, other starting points are tried (a
+    large gyro bias, a poor linear start); the best fit wins."""
+    consumer = (PRIOR_GYRO_BIAS, PRIOR_ACCEL_BIAS)
+    n_obs = len(win.fixes.sigma.reshape(-1))
+    wide = _fit(win, bias_g, bias_a, prior_sigma=consumer)
+    retry = False
+    if tuple(prior) == consumer:
+        # freed biases, possibly large: the other starting points too
+        best, used, retry = wide, consumer, True
+    else:
+        first = _fit(win, bias_g, bias_a, prior_sigma=prior)
+        if not _prior_rejected(first, wide, n_obs, 6):
+            if first[6] <= VARIANCE_FACTOR_RETRY:
+                return first, tuple(prior)
+            best, used = min((first, wide), key=lambda s: s[6]), tuple(prior)
+        else:
+            retry = True
+            best, used = wide, consumer
+    if (retry or best[6] > VARIANCE_FACTOR_RETRY) and \
             np.min(_heading_sigmas(best[0], best[7], best[5])) < RETRY_HEADING_SIGMA:
-        best = min([best, *_multi_start(win, bias_g, bias_a)], key=lambda s: s[6])
-    return best, prior_held
+        best = min([best, *_multi_start(win, bias_g, bias_a, used)], key=lambda s: s[6])
+    return best, used
 
 
-def _prior_rejected(constrained, free, n_obs: int) -> bool:
-    """F-test: does freeing the biases (6 parameters) reduce the weighted GNSS misfit more than chance allows?"""
+def _prior_rejected(constrained, free, n_obs: int, freed: int) -> bool:
+    """F-test: does freeing ``freed`` bias parameters reduce the weighted GNSS misfit more than chance allows?"""
     from scipy.special import fdtri  # scipy.stats would add 0.2 s of import to every run
 
     dof_free = max(n_obs - 15, 1)
     misfit_c = constrained[6] * dof_free
     misfit_f = free[6] * dof_free
-    statistic = max(misfit_c - misfit_f, 0.0) / 6.0 / max(misfit_f / dof_free, 1e-12)
-    return bool(statistic > fdtri(6, dof_free, PRIOR_TEST_LEVEL))
+    statistic = max(misfit_c - misfit_f, 0.0) / freed / max(misfit_f / dof_free, 1e-12)
+    return bool(statistic > fdtri(freed, dof_free, PRIOR_TEST_LEVEL))
 
 
-def _multi_start(win: _Window, bias_g: np.ndarray, bias_a: np.ndarray) -> list:
-    """Fits from other starting points, for when the first one fits badly: the gyro bias about the initial
-    vertical screened on a grid (+-GYRO_BIAS_RANGE, step ~ 1/(2 T)) by the linear fit's residual, and the
-    best three screened biases each from four headings."""
+def _multi_start(win: _Window, bias_g: np.ndarray, bias_a: np.ndarray, prior: tuple[float, float]) -> list:
+    """Fits (with the bias prior ``prior``) from other starting points, for when the first one fits badly: the
+    gyro bias about the initial vertical screened on a grid (+-GYRO_BIAS_RANGE, step ~ 1/(2 T)) by the linear
+    fit's residual, and the best three screened biases each from four headings."""
     f0 = win.accel[win.row0:win.row0 + 50].mean(axis=0)
     down_b = -f0 / np.linalg.norm(f0)
     span = max(float(win.tau[-1]), 1.0)
@@ -419,5 +433,5 @@ def _multi_start(win: _Window, bias_g: np.ndarray, bias_a: np.ndarray) -> list:
     out = []
     for offset in starts:
         for turn in (0.0, 0.5 * np.pi, np.pi, 1.5 * np.pi):
-            out.append(_fit(win, bias_g + offset * down_b, bias_a, turn))
+            out.append(_fit(win, bias_g + offset * down_b, bias_a, turn, prior_sigma=prior))
     return out

@@ -111,6 +111,9 @@ ESTIMATION_GATE = 40.1
 #: prior sigma of the latency state [s] and of the lever-arm state [m] (plus the given lever arm's size)
 LATENCY_PRIOR_S = 0.2
 LEVER_PRIOR_M = 1.0
+#: re-linearised calibration passes at most, while the lever-arm estimate moves by more than 3 sigma and this [m]
+CALIBRATION_ITERATIONS = 3
+CALIBRATION_STEP_M = 0.1
 #: the filter's prior at the start, where wider than the alignment's resolution: velocity [m/s] (on top of a
 #: fix's sigma over sqrt(2)), roll and pitch, heading [deg]
 START_SPEED_SIGMA = 0.5
@@ -325,6 +328,17 @@ def initial_alignment(inputs: InsInputs, cfg: ProcessingConfig, start_time: floa
     P[layout.ATT + 2, :] = 0.0
     P[:, layout.ATT + 2] = 0.0
     P[layout.ATT + 2, layout.ATT + 2] = heading_sigma**2
+    # Without the heading, the gyro bias about the vertical is not observable either: the fit's value is one of
+    # many that fit as well (a hovering multicopter's fits ranged over +-0.09 rad/s at equal misfit). It goes back
+    # to the prior (zero, with the prior's sigma), so that the yaw's sigma grows as the gyro lets it.
+    down_b = result.C_b_n.T @ np.array([0.0, 0.0, 1.0])
+    bias_sigma = (result.bias_prior_sigma or _datasheet_bias_sigma(cfg))[0]
+    result.gyro_bias = result.gyro_bias - (result.gyro_bias @ down_b) * down_b
+    block = slice(layout.BG, layout.BG + 3)
+    keep = np.eye(3) - np.outer(down_b, down_b)
+    P[block, :] = keep @ P[block, :]
+    P[:, block] = P[:, block] @ keep
+    P[block, block] += bias_sigma**2 * np.outer(down_b, down_b)
     result.heading_sigma = heading_sigma
     result.heading_source = source
     return result
@@ -824,8 +838,57 @@ class _Estimation:
             self.start_state = state
         self.start_state = best_state
         # a last pass with the lever arm and latency as states: what the data say about them
-        self._smoothed(best, calibrate=True)
+        self._calibrate(best)
         return best
+
+    def _calibrate(self, noise: NoiseModel) -> None:
+        """The lever arm and latency as states (:attr:`calibration`), re-linearised: a lever arm far from the
+        given one is reached in steps, each pass starting from the last one's estimate (one pass moved a 45 m
+        typo only to 19 m). When the data disagree with the given lever arm, or the pass diverges, the
+        calibration is also run from no lever arm, re-aligned without it (a gross typo drags the alignment and
+        the start state along), and the one whose innovations are likelier is kept. The given lever arm stays
+        the one the final pass applies."""
+        given = self.lever.copy()
+        try:
+            kept = self._calibration_from(noise, given)
+            if kept is None or _moved(kept[0], given):
+                alignment, start_state = self.alignment, self.start_state
+                try:
+                    self.alignment = initial_alignment(self.inputs, self.cfg.updated(lever_arm_gnss=(0.0, 0.0, 0.0)))
+                    self.start_state = None
+                    other = self._calibration_from(noise, np.zeros(3))
+                except GeorefError:
+                    other = None
+                finally:
+                    self.alignment, self.start_state = alignment, start_state
+                if other is not None and (kept is None or other[1] > kept[1]):
+                    kept = other
+            self.calibration = None if kept is None else kept[0]
+        finally:
+            self.lever = given
+
+    def _calibration_from(self, noise: NoiseModel, lever: np.ndarray) -> tuple[Calibration, float] | None:
+        """Calibration passes from ``lever`` until the estimate stops moving: (calibration, innovation
+        log-likelihood of the last pass), or None when a pass diverges."""
+        self.lever = lever.copy()
+        self.calibration = None
+        run = self._smoothed(noise, calibrate=True)
+        for _ in range(CALIBRATION_ITERATIONS):
+            if run.diverged or not _moved(self.calibration, self.lever):
+                break
+            self.lever = self.calibration.lever_arm.copy()
+            run = self._smoothed(noise, calibrate=True)
+        if run.diverged or self.calibration is None:
+            return None
+        return self.calibration, float(run.loglik.sum())
+
+
+def _moved(calibration: Calibration | None, lever: np.ndarray) -> bool:
+    """Is the lever-arm estimate off ``lever`` [m] by more than 3 sigma and CALIBRATION_STEP_M on some axis?"""
+    if calibration is None:
+        return False
+    moved = np.abs(calibration.lever_arm - lever)
+    return bool(np.any((moved > 3.0 * calibration.lever_arm_sigma) & (moved > CALIBRATION_STEP_M)))
 
 
 def _ground_vehicle_test(run: _Pass) -> dict[str, float]:

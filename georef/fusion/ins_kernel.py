@@ -500,6 +500,12 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
         has_fix = k_fix < m and fix_row[k_fix] == k
         if count >= stride or has_fix or k == n - 1:
             P = propagate(P, x_epoch, C_sum / count, f_sum / count, noise, t[k] - t_epoch, q_scale[k], F, Phi, Qd)
+            if not math.isfinite(np.trace(P) + np.sum(x)):
+                # numerically gone (a wild correction, an absurd lever arm): a divergence, never a NaN passed on
+                stop[0] = ep_row[n_ep - 1]
+                stop[1] = max(k_fix - 1, 0)
+                stop[2] = STOP_DIVERGED
+                break
             ep_row[n_ep] = k
             ep_dT[n_ep] = t[k] - t_epoch
             ep_Pm[n_ep] = P

@@ -1,8 +1,9 @@
 """Generic inputs for users without an iMAR unit, and the fused trajectory table.
 
 * ``imu.csv``: ``time, gyro_x, gyro_y, gyro_z, acc_x, acc_y, acc_z`` — seconds (any epoch, increasing),
-  rad/s, m/s^2, body axes forward-right-down; optionally ``mag_x, mag_y, mag_z`` (any unit) for
-  ``georef attitude``.
+  rad/s, m/s^2, body axes forward-right-down; optionally ``mag_x, mag_y, mag_z`` (any unit, body axes) and an
+  autopilot's own ``yaw`` [deg from true north] (with ``roll, pitch``, which are not used): ``georef fuse``
+  takes its heading from them when the motion never shows it, ``georef attitude`` reads the magnetometer.
 * ``gnss.csv``: ``time, lat, lon, height`` [+ ``sigma_n, sigma_e, sigma_u``] — degrees, metres, antenna
   position, the IMU's time scale.
 * ``traj.csv`` (written by ``georef fuse``): ``time, lat, lon, height, vn, ve, vd, roll, pitch, yaw`` and
@@ -26,12 +27,28 @@ from georef.io.table import read_table
 IMU_COLUMNS = ("time", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
 GNSS_COLUMNS = ("time", "lat", "lon", "height")
 MAG_COLUMNS = ("mag_x", "mag_y", "mag_z")
+AUTOPILOT_YAW = "yaw"
 
 
 def read_imu_csv(path: Path | str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``imu.csv`` -> time [s], gyro [rad/s] (N, 3), specific force [m/s^2] (N, 3), file lines."""
     time, gyro, accel, _, lines = read_marg_csv(path)
     return time, gyro, accel, lines
+
+
+def read_imu_heading_sources(path: Path | str) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The heading sources of ``imu.csv`` beside the IMU: the magnetometer (N, 3) and the autopilot's yaw [rad]
+    (N,), each None when the file has no such columns."""
+    wanted = dict.fromkeys((*IMU_COLUMNS, *MAG_COLUMNS, AUTOPILOT_YAW), "float")
+    table = read_table(path, wanted, required=set(IMU_COLUMNS), sep=",")
+    c = table.columns
+    present = [name for name in MAG_COLUMNS if name in c]
+    if present and len(present) < 3:
+        missing = [name for name in MAG_COLUMNS if name not in c][0]
+        raise InputError(table.path, 1, missing, "magnetometer columns come as mag_x, mag_y, mag_z together")
+    mag = np.stack([c[name] for name in MAG_COLUMNS], -1) if present else None
+    yaw = np.radians(c[AUTOPILOT_YAW]) if AUTOPILOT_YAW in c else None
+    return mag, yaw
 
 
 def read_marg_csv(path: Path | str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
