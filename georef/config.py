@@ -44,8 +44,17 @@ class ProcessingConfig:
     magnetic_declination: float = 0.0
     #: "auto" (non-holonomic constraints when the motion shows a ground vehicle), "ground" or "air"
     vehicle: str = "auto"
-    #: projected CRS for easting/northing, e.g. "EPSG:3765"
+    #: projected CRS for easting/northing, e.g. "EPSG:3765", or a compound CRS with its height system
+    #: ("EPSG:3765+5773"; then ``height = "orthometric"``)
     crs: str | None = None
+    #: heights of the exports: "ellipsoidal" (WGS 84) or "orthometric" (``vertical_crs``, or the compound CRS's)
+    height: str = "ellipsoidal"
+    #: vertical CRS of orthometric heights when ``crs`` has none (EPSG:5773 = EGM96 height)
+    vertical_crs: str = "EPSG:5773"
+    #: image file names: a pattern such as "IMG_{frame:04d}.JPG" or a two-column CSV (frame, name)
+    image_names: str | None = None
+    #: write the camera's yaw/pitch/roll into OpenDroneMap's geo.txt (default: NaN, see docs/formats.md)
+    odm_angles: bool = False
     #: POS column role -> header name remapping
     pos_columns: dict[str, str] = field(default_factory=dict)
     #: yaw-offset recovery: window length [s], window step [s] and drift-smoothing bandwidth [s]
@@ -87,6 +96,8 @@ class ProcessingConfig:
             raise ValueError(f"graph_solver must be 'lm' or 'isam2', got {self.graph_solver!r}")
         if self.vehicle not in ("auto", "ground", "air"):
             raise ValueError(f"vehicle must be 'auto', 'ground' or 'air', got {self.vehicle!r}")
+        if self.height not in ("ellipsoidal", "orthometric"):
+            raise ValueError(f"height must be 'ellipsoidal' or 'orthometric', got {self.height!r}")
         if self.attitude_source not in ("unit", "imu"):
             raise ValueError(f"attitude_source must be 'unit' or 'imu', got {self.attitude_source!r}")
         for name in ("lever_arm_gnss", "lever_arm_camera", "boresight", "gnss_sigma"):
@@ -114,7 +125,7 @@ _SECTIONS = {
     "mounting": {"lever_arm_gnss", "lever_arm_camera", "boresight"},
     "gnss": {"gnss_sigma", "gnss_rate_hz", "gnss_latency"},
     "camera": {"camera_utc_offset", "camera_time_offset"},
-    "output": {"crs"},
+    "output": {"crs", "height", "vertical_crs", "image_names", "odm_angles"},
     "yaw_offset": {"yaw_window", "yaw_step", "yaw_bandwidth"},
     "unit": {"unit_level_sigma", "unit_yaw_sigma", "unit_level_time", "unit_angle_noise", "unit_drift_change",
              "unit_aiding"},

@@ -1,13 +1,18 @@
 """Exterior orientation of every frame: lever arm and boresight applied, sigmas propagated, flags set.
 
-Columns (``docs/formats.md``): ``frame, time, lat, lon, height, roll, pitch, yaw, sigma_n, sigma_e,
-sigma_u, sigma_roll, sigma_pitch, sigma_yaw, track, yaw_minus_track`` [+ ``easting, northing, omega, phi,
-kappa`` with a CRS], ``flag``.
-Angles in degrees (yaw and track in [0, 360)), heights ellipsoidal [m], sigmas 1-sigma in m and deg.
+Columns (``docs/formats.md``): ``frame`` [+ ``image`` with image names], ``time, lat, lon, height, roll, pitch,
+yaw, sigma_n, sigma_e, sigma_u, sigma_roll, sigma_pitch, sigma_yaw, track, yaw_minus_track``
+[+ ``height_orthometric`` with orthometric heights] [+ ``easting, northing, omega, phi, kappa, sigma_x, sigma_y,
+sigma_omega, sigma_phi, sigma_kappa`` with a CRS], ``flag``.
+Angles in degrees (yaw and track in [0, 360)), ``height`` ellipsoidal [m], sigmas 1-sigma in m and deg;
+``sigma_x``, ``sigma_y`` along the grid's easting and northing axes (grid metres), ``sigma_omega..kappa`` of the
+photogrammetric angles (:mod:`georef.frames.opk_covariance`).
 Roll, pitch and yaw are the ZYX Euler angles of the *camera* frame relative to local NED.
 """
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -19,6 +24,10 @@ from georef.frames import C_e_n, dcm_to_euler, ecef_to_geodetic, skew, wrap_360
 from georef.frames.mounting import camera_attitude, lever_arm_ecef
 from georef.frames.rotations import euler_error_jacobian
 from georef.io.camera import Exposures
+from georef.io.image_names import ImageNames
+
+if TYPE_CHECKING:
+    from georef.frames.heights import OutputFrames
 
 EO_COLUMNS = ["frame", "time", "lat", "lon", "height", "roll", "pitch", "yaw", "sigma_n", "sigma_e", "sigma_u",
               "sigma_roll", "sigma_pitch", "sigma_yaw", "track", "yaw_minus_track"]
@@ -57,13 +66,23 @@ def _flags(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, outag
 
 
 def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, cfg: ProcessingConfig,
-                    outage_min_s: float = 2.5) -> pd.DataFrame:
+                    outage_min_s: float = 2.5, frames: OutputFrames | None = None,
+                    image_names: ImageNames | None = None) -> pd.DataFrame:
     """The EO table of every exposure (rows outside the navigation span have empty values and a flag).
 
     Flags (joined by ``"; "``): outside the navigation span; in a GNSS outage of at least ``outage_min_s`` [s];
     more than ``outage_min_s`` after the last GNSS fix or before the first one (with the seconds of inertial-only
     navigation); a duplicate frame number; a time earlier than the previous frame's.
+
+    ``frames`` (default: from ``cfg.crs``, ``cfg.height``, ``cfg.vertical_crs``) gives the grid and the heights;
+    ``image_names`` (default: from ``cfg.image_names``) the ``image`` column.
     """
+    if frames is None and (cfg.crs or cfg.height != "ellipsoidal"):
+        from georef.frames.heights import OutputFrames  # pyproj only when a CRS or a geoid is asked for
+
+        frames = OutputFrames(cfg.crs, cfg.height, cfg.vertical_crs)
+    if image_names is None and cfg.image_names:
+        image_names = ImageNames.parse(cfg.image_names)
     inside = states.inside
     n = len(exposures)
     out = {name: np.full(n, np.nan) for name in EO_COLUMNS[2:]}
@@ -82,6 +101,7 @@ def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpoc
         S = skew(lever_n)
         if states.att_cov_n is not None:
             att_cov = states.att_cov_n[inside]
+            att_cov_n = att_cov
             lever_var = np.einsum("nij,njk,nik->ni", S, att_cov, S)
             J = euler_error_jacobian(roll, pitch, yaw)
             euler_var = np.einsum("nij,njk,nik->ni", J, att_cov, J)
@@ -91,6 +111,7 @@ def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpoc
             att_var = states.att_sigma[inside] ** 2
             lever_var = np.einsum("nij,nj->ni", S**2, att_var)
             euler_sigma = states.att_sigma[inside]
+            att_cov_n = np.einsum("ni,ij->nij", att_var, np.eye(3))
         pos_var = states.pos_var_n[inside] + lever_var
         # a negative or missing variance (a numerically broken smoother) gives no sigma and a flag, never a NaN
         # that looks like a number was attempted
@@ -110,19 +131,32 @@ def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpoc
         for name, value in values.items():
             out[name][inside] = value
     table = pd.DataFrame({"frame": exposures.frame, "time": exposures.time, **out})
-    if cfg.crs:
+    if image_names is not None:
+        table.insert(1, "image", image_names.names([str(f) for f in exposures.frame]))
+    if frames is not None and frames.height == "orthometric":
+        table["height_orthometric"] = frames.output_heights(out["lat"], out["lon"], out["height"])
+    if frames is not None and frames.horizontal is not None:
         from georef.frames.mapping import MapProjection  # pyproj only when a CRS is asked for
+        from georef.frames.opk_covariance import grid_position_covariance, opk_covariance
         from georef.frames.photogrammetry import image_to_map, rotation_to_opk
 
-        projection = MapProjection(cfg.crs)
-        grid = {name: np.full(n, np.nan) for name in ("easting", "northing", "omega", "phi", "kappa")}
+        projection = MapProjection(frames.horizontal_name or "")
+        grid = {name: np.full(n, np.nan) for name in ("easting", "northing", "omega", "phi", "kappa", "sigma_x",
+                                                        "sigma_y", "sigma_omega", "sigma_phi", "sigma_kappa")}
         if inside.any():
             lat_deg, lon_deg = out["lat"][inside], out["lon"][inside]
             grid["easting"][inside], grid["northing"][inside] = projection.forward(lat_deg, lon_deg)
-            convergence, _ = projection.convergence_and_scale(lat_deg, lon_deg)
+            convergence, scale = projection.convergence_and_scale(lat_deg, lon_deg)
             omega, phi, kappa = rotation_to_opk(image_to_map(C_c_n, convergence))
             grid["omega"][inside], grid["phi"][inside] = np.degrees(omega), np.degrees(phi)
             grid["kappa"][inside] = np.degrees(kappa)
+            var_x, var_y, _ = grid_position_covariance(pos_var[:, 0], pos_var[:, 1], convergence, scale)
+            grid["sigma_x"][inside] = np.sqrt(np.where(var_x >= 0.0, var_x, np.nan))
+            grid["sigma_y"][inside] = np.sqrt(np.where(var_y >= 0.0, var_y, np.nan))
+            opk_var = np.diagonal(opk_covariance(omega, phi, convergence, att_cov_n), axis1=-2, axis2=-1)
+            opk_sigma = np.degrees(np.sqrt(np.where(opk_var >= 0.0, opk_var, np.nan)))
+            for i, name in enumerate(("sigma_omega", "sigma_phi", "sigma_kappa")):
+                grid[name][inside] = opk_sigma[:, i]
         for name, values in grid.items():
             table[name] = values
     flags = _flags(exposures, states, gnss, outage_min_s)

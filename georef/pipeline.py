@@ -11,6 +11,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -25,7 +26,11 @@ from georef.fusion.ins_layout import UNIT_YAW
 from georef.fusion.solution import NavSolution
 from georef.io.camera import Exposures, read_camera_log, read_kamera
 from georef.io.errors import GeorefError, InputNotice
+from georef.io.image_names import ImageNames
 from georef.io.pos import PosLog, read_pos
+
+if TYPE_CHECKING:
+    from georef.frames.heights import OutputFrames
 
 SOLVERS: dict[str, tuple[Callable[[PosLog, ProcessingConfig], NavSolution], tuple[str, ...]]] = {
     "axis": (axis.solve_axis, axis.REQUIRED_ROLES),
@@ -55,6 +60,8 @@ class ProcessResult:
     config: ProcessingConfig
     notices: list[InputNotice] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
+    #: the output CRS and heights (None: WGS 84 ellipsoidal only)
+    frames: OutputFrames | None = None
 
     def summary(self) -> dict[str, object]:
         """Figures for the end-of-run report (units in the keys). The yaw-offset figures are those of
@@ -85,7 +92,39 @@ class ProcessResult:
             "method": self.nav.method,
         }
         summary.update(solution_figures(self.nav, self.config))
+        summary.update(geodesy_figures(self.frames, self.table))
         return summary
+
+
+def geodesy_figures(frames: OutputFrames | None, table: pd.DataFrame) -> dict[str, object]:
+    """The output coordinates and what PROJ did to make them:
+
+    * ``output_crs``: the projected CRS (None without one); ``output_heights``: "WGS 84 ellipsoidal" or the
+      vertical CRS of the orthometric heights;
+    * ``proj_transformations``: each transformation PROJ used, with its stated accuracy;
+    * ``proj_accuracy_m``: the largest stated accuracy [m] (None: none stated or none used);
+    * ``geodesy_warnings``: the transformations whose stated accuracy exceeds the median horizontal (or, for
+      heights, vertical) sigma of the table — georef's sigmas do not contain them.
+    """
+    if frames is None:
+        return {"output_crs": None, "output_heights": "WGS 84 ellipsoidal", "proj_transformations": [],
+                "proj_accuracy_m": None, "geodesy_warnings": []}
+    used = frames.describe()
+    stated = [t.accuracy_m for t in used if t.accuracy_m is not None]
+    valid = table.dropna(subset=["sigma_n", "sigma_e", "sigma_u"])
+    horizontal = float(np.median(np.sqrt((valid["sigma_n"] ** 2 + valid["sigma_e"] ** 2) / 2))) if len(valid) else 0.0
+    vertical = float(np.median(valid["sigma_u"])) if len(valid) else 0.0
+    warnings = []
+    for t in used:
+        limit = vertical if t.what.startswith("WGS 84 ellipsoidal height") else horizontal
+        if t.accuracy_m is None:
+            warnings.append(f"{t.what}: PROJ states no accuracy for {t.description}")
+        elif t.accuracy_m > limit:
+            warnings.append(f"{t.what}: PROJ states {t.accuracy_m:g} m for {t.description}, more than the median "
+                            f"sigma {limit:.2f} m; the sigma columns do not include it")
+    return {"output_crs": frames.horizontal_name, "output_heights": frames.height_name,
+            "proj_transformations": [str(t) for t in used], "proj_accuracy_m": max(stated) if stated else None,
+            "geodesy_warnings": warnings}
 
 
 def solution_figures(nav: NavSolution, cfg: ProcessingConfig) -> dict[str, object]:
@@ -168,6 +207,13 @@ def process(pos_path: Path | str, camera_path: Path | str, cfg: ProcessingConfig
     say = progress or (lambda _step: None)
     timings: dict[str, float] = {}
     solver, roles = SOLVERS[cfg.method]
+    # the output CRS, its geoid grid and the image names are checked before any reading or fusing
+    frames = None
+    if cfg.crs or cfg.height != "ellipsoidal":
+        from georef.frames.heights import OutputFrames
+
+        frames = OutputFrames(cfg.crs, cfg.height, cfg.vertical_crs)
+    image_names = ImageNames.parse(cfg.image_names) if cfg.image_names else None
 
     start = time.perf_counter()
     say("reading POS log")
@@ -178,6 +224,8 @@ def process(pos_path: Path | str, camera_path: Path | str, cfg: ProcessingConfig
         # trigger latency: each exposure happened camera_time_offset [s] after its logged time
         exposures.time = exposures.time + float(cfg.camera_time_offset)
     exposures.time = to_reference_day(exposures.time, float(log.time[0]), float(log.time[-1]))
+    if image_names is not None:
+        image_names.names([str(f) for f in exposures.frame])  # a frame without a name fails before fusing
     timings["read"] = time.perf_counter() - start
 
     if len(log.gnss) < 2:
@@ -198,7 +246,7 @@ def process(pos_path: Path | str, camera_path: Path | str, cfg: ProcessingConfig
     start = time.perf_counter()
     say("interpolating to exposures")
     states = interpolate_to_exposures(nav, exposures.time)
-    table = camera_eo_table(exposures, states, log.gnss, cfg)
+    table = camera_eo_table(exposures, states, log.gnss, cfg, frames=frames, image_names=image_names)
     timings["interpolate"] = time.perf_counter() - start
     return ProcessResult(table=table, nav=nav, log=log, exposures=exposures, config=cfg,
-                         notices=[*log.notices, *exposures.notices], timings=timings)
+                         notices=[*log.notices, *exposures.notices], timings=timings, frames=frames)

@@ -124,9 +124,19 @@ def process(
     pos: Annotated[Path, typer.Argument(help="POS unit log (POS.txt, tab separated, iMAR layout).")],
     camera: Annotated[Path, typer.Argument(help="Exposure times: Kamera.txt, or the camera's raw log "
                                                 "(needs --camera-utc-offset).")],
-    output: Annotated[Path, typer.Option("-o", "--output", help="EO table to write.")] = Path("eo.csv"),
-    output_format: Annotated[str, typer.Option("--format", help="csv (the EO table), metashape, pix4d, odm (geo.txt), "
-                                               "parge, geojson or kml; metashape/pix4d/odm need --crs.")] = "csv",
+    output: Annotated[Path | None, typer.Option("-o", "--output", help="EO table to write (default eo.csv); a .kml, "
+                                                ".geojson or geo.txt name writes that format.")] = None,
+    output_format: Annotated[str | None, typer.Option(
+        "--format", help="Format of -o: csv (the EO table), metashape, pix4d, odm (geo.txt), parge, geojson or kml; "
+                         "metashape/pix4d/odm need --crs. Default: from -o's extension, else csv.")] = None,
+    export: Annotated[list[str] | None, typer.Option("--export", help="Also write FORMAT:FILE (metashape:ms.csv, "
+                                                     "odm:geo.txt) or FILE with a .kml/.geojson/.csv extension; "
+                                                     "repeatable.")] = None,
+    height: Annotated[str | None, typer.Option("--height", help="Heights of the exports: ellipsoidal (WGS 84, "
+                                               "default) or orthometric (EGM96 from PROJ's grid, or the vertical "
+                                               "CRS of a compound --crs such as EPSG:3765+5773).")] = None,
+    image_names: Annotated[str | None, typer.Option("--image-names", help="Image file names: a pattern such as "
+                                                    "IMG_{frame:04d}.JPG, or a CSV of frame,name.")] = None,
     config: Annotated[Path | None, typer.Option("--config", help="flight.toml with any of these settings; "
                                                 "command-line options win.")] = None,
     method: Annotated[str | None, typer.Option(help=f"Fusion method: {', '.join(METHODS)}.")] = None,
@@ -147,7 +157,8 @@ def process(
     gnss_latency: Annotated[float | None, typer.Option(help=GNSS_LATENCY_HELP)] = None,
     vehicle: Annotated[str | None, typer.Option(help=VEHICLE_HELP)] = None,
     crs: Annotated[str | None, typer.Option(
-        help="Projected CRS for easting/northing columns, e.g. EPSG:3765 (HTRS96/TM).")] = None,
+        help="Projected CRS for easting/northing columns, e.g. EPSG:3765 (HTRS96/TM), or a compound CRS with its "
+             "height system, e.g. EPSG:3765+5773 (with --height orthometric).")] = None,
     attitude_source: Annotated[str | None, typer.Option(
         help="Roll and pitch from the POS unit ('unit', default) or recomputed from the raw IMU ('imu').")] = None,
     report: Annotated[Path | None, typer.Option(
@@ -160,7 +171,9 @@ def process(
 
     Exit code 4: the outputs are written but the quality checks failed (docs/qc.md).
     """
-    from georef.io.exports import NEEDS_CRS, write_export
+    from georef.frames.heights import OutputFrames
+    from georef.io.exports import ExportError, ExportSpec, check_exports, format_of, parse_export, write_export
+    from georef.io.image_names import ImageNames
     from georef.pipeline import process as run
     from georef.qc import assess_result
 
@@ -172,14 +185,30 @@ def process(
         gnss_sigma=_triple(gnss_sigma, "--gnss-sigma", "metres"), gnss_rate_hz=gnss_rate,
         camera_utc_offset=camera_utc_offset, crs=crs, attitude_source=attitude_source,
         camera_time_offset=camera_time_offset, gnss_latency=gnss_latency, vehicle=vehicle,
+        height=height, image_names=image_names,
     )
-    if output_format in NEEDS_CRS and not cfg.crs:
-        raise typer.BadParameter(f"--format {output_format} writes projected coordinates: give --crs EPSG:xxxx")
+    # every output, its format, the CRS, the geoid grid and the image names are checked before processing
+    if output is None:
+        if output_format not in (None, "csv"):
+            raise typer.BadParameter(f"--format {output_format} needs -o FILE (eo.csv is the EO table's default); "
+                                     f"or add --export {output_format}:FILE to write it beside eo.csv")
+        output = Path("eo.csv")
+    if output_format is None:
+        try:
+            output_format = format_of(output)
+        except ExportError:
+            output_format = "csv"
+    specs = [ExportSpec(format_of(output, output_format), output), *(parse_export(text) for text in export or [])]
+    frames = OutputFrames(cfg.crs, cfg.height, cfg.vertical_crs) if cfg.crs or cfg.height != "ellipsoidal" else None
+    check_exports(specs, frames)
+    if cfg.image_names:
+        ImageNames.parse(cfg.image_names)
     progress, step = _stage_progress(quiet, total=5 if report is not None else 4)
     with progress if progress is not None else contextlib.nullcontext():
         result = run(pos, camera, cfg, progress=step)
-        step("writing table")
-        write_export(result.table, output, output_format, cfg.crs)
+        step("writing table" if len(specs) == 1 else f"writing {len(specs)} outputs")
+        for spec in specs:
+            write_export(result.table, spec.path, spec.fmt, frames=result.frames, odm_angles=cfg.odm_angles)
         verdict = assess_result(result)
         if report is not None:
             from georef.report import write_report
@@ -188,6 +217,10 @@ def process(
             write_report(result, report, verdict=verdict)
     if not quiet:
         _print_summary(result, output, verbose)
+        for spec in specs[1:]:
+            out.print(f"also wrote {escape(spec.fmt)} -> {escape(str(spec.path))}", highlight=False)
+    for warning in result.summary()["geodesy_warnings"]:
+        console.print(f"[yellow]warning:[/] {escape(str(warning))}", highlight=False)
     _print_verdict(verdict, quiet)
     if not verdict.passed:
         raise typer.Exit(code=EXIT_QC_FAILED)
@@ -247,6 +280,10 @@ def _print_summary(result: Any, output: Path, verbose: bool) -> None:
     for what, value in _filter_rows(s):
         table.add_row(what, value)
     table.add_row("time quirks repaired", str(s["time_quirks_repaired"]))
+    if s.get("output_crs") or s.get("output_heights") != "WGS 84 ellipsoidal":
+        table.add_row("coordinates", escape(f"{s.get('output_crs') or 'WGS 84'}, heights {s['output_heights']}"))
+        for used in s.get("proj_transformations", []):
+            table.add_row("PROJ", escape(str(used)))
     valid = result.table.dropna(subset=["sigma_n"])
     if len(valid):
         horizontal = np.hypot(valid["sigma_n"], valid["sigma_e"])

@@ -1,32 +1,36 @@
-"""Exports of the EO table that photogrammetry and GIS software read (``--format``).
+"""Exports of the EO table that photogrammetry and GIS software read (``--format``, ``--export``).
 
-Each writer takes the EO table of :mod:`georef.eo` (degrees, metres) and writes atomically. Documentation
-followed (checked 2026-11):
+Each writer takes the EO table of :mod:`georef.eo` and writes atomically. Every station format labels a row with
+its image file name (the ``image`` column of ``--image-names``; the frame id without it), writes the heights the
+run asked for (:class:`georef.frames.heights.OutputFrames`) and each consumer's own angles and sigmas. What each
+consumer defines, and the versions checked, are in ``docs/formats.md``; ``tests/test_exports.py`` reads every file
+back with the consumer's own parsing code (ported, cited) or an independent validator (GDAL/OGR, fastkml):
 
-* ``metashape`` — a reference CSV for Agisoft Metashape's *Import Reference* (user manual 1.7-2.1,
-  "Loading camera positions"/"Referencing"; the import dialog assigns columns by number and skips ``#``
-  lines): label, projected X/Y/Z, omega/phi/kappa (choose *Rotation angles: Omega, Phi, Kappa* in the
-  Reference settings) and their accuracies; a ``#`` comment line names the columns. Not checked against a
-  running Metashape.
-* ``pix4d`` — PIX4Dmapper's image geolocation and orientation file (Image Properties Editor > Image
-  Geolocation > From File, "X, Y, Z, Omega, Phi, Kappa" with accuracies; Pix4D support articles "Input files -
-  PIX4Dmapper" and "Image Geolocation - PIX4Dmapper"): ``imagename,X,Y,Z,omega,phi,kappa,accuracy_horz,
-  accuracy_vert`` in projected coordinates, a ``#`` comment line first. PIX4Dmatic's own import format uses
-  yaw/pitch/roll in a camera convention it defines differently; it is not written.
-* ``odm`` — OpenDroneMap ``geo.txt`` (ODM docs, "Image Geolocation Files", ODM ≥ 2.0): the first line the
-  projection (an EPSG code), then ``image_name geo_x geo_y geo_z yaw pitch roll horz_accuracy vert_accuracy``.
-  ODM uses the angles only for radiometric calibration and does not document their convention, so they are
-  written as 0, which its documentation allows.
+* ``metashape`` — Agisoft Metashape *Import Reference* CSV: label, easting, northing, height, ω, φ, κ, then the
+  accuracies of each: σ of easting and northing along the grid axes (``sigma_x``, ``sigma_y``), σ of the height,
+  σ of ω, φ, κ (``sigma_omega..kappa``: the attitude covariance rotated into ω, φ, κ).
+* ``pix4d`` — PIX4D image geolocation and orientation file: image name, the two coordinates **in the CRS's axis
+  order** (northing first for EPSG:31466 or EPSG:3006), height, yaw, pitch, roll of the camera (Pix4D's
+  definition: yaw 0 = top of image north, pitch 0 = nadir), horizontal and vertical accuracy as the σ of a
+  normal distribution per axis.
+* ``odm`` — OpenDroneMap ``geo.txt``: ``EPSG:nnnn`` line, then ``image x y z yaw pitch roll σh σv``; the angles
+  are ``nan`` (ODM's "absent") unless ``odm_angles`` asks for them: ODM 3.6 turns them into ω, φ, κ with a
+  frame error (docs/formats.md).
 * ``parge`` — the seed thesis's table: frame, latitude, longitude, height, roll, pitch, yaw minus track.
-* ``geojson`` (RFC 7946, WGS84 lon/lat/height) and ``kml`` (OGC KML 2.2) — the exposure stations as points
-  with every column as attributes.
+* ``geojson`` — RFC 7946: [longitude, latitude, WGS 84 ellipsoidal height] (the RFC's CRS), every column a
+  property.
+* ``kml`` — OGC KML 2.2, ``altitudeMode absolute`` ("relative to sea level") with EGM96 heights, the sea level of
+  Google Earth; every column as ExtendedData.
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from xml.sax.saxutils import escape
+from typing import TYPE_CHECKING
+from xml.sax.saxutils import escape, quoteattr
 
 import numpy as np
 import pandas as pd
@@ -34,8 +38,78 @@ import pandas as pd
 from georef.io.atomic import atomic_write
 from georef.io.eo_table import write_eo_csv
 
+if TYPE_CHECKING:
+    from georef.frames.heights import OutputFrames
+
 FORMATS = ("csv", "metashape", "pix4d", "odm", "parge", "geojson", "kml")
 NEEDS_CRS = ("metashape", "pix4d", "odm")
+#: formats chosen from a file's extension (``-o stations.kml``, ``--export stations.geojson``)
+EXTENSIONS = {".csv": "csv", ".kml": "kml", ".geojson": "geojson"}
+#: file names that name their format
+FILE_NAMES = {"geo.txt": "odm"}
+
+
+class ExportError(ValueError):
+    """An export the user asked for cannot be written as asked (reported before any processing)."""
+
+
+@dataclass(frozen=True)
+class ExportSpec:
+    """One output file and its format."""
+
+    fmt: str
+    path: Path
+
+
+def format_of(path: Path | str, fmt: str | None = None) -> str:
+    """The format of an output: ``fmt`` when given (checked), else from the file name or extension."""
+    if fmt is not None:
+        if fmt not in FORMATS:
+            raise ExportError(f"unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
+        return fmt
+    name = Path(path).name.lower()
+    if name in FILE_NAMES:
+        return FILE_NAMES[name]
+    suffix = Path(path).suffix.lower()
+    if suffix in EXTENSIONS:
+        return EXTENSIONS[suffix]
+    raise ExportError(f"cannot tell the format of {str(path)!r} from its extension ({', '.join(EXTENSIONS)} or "
+                      f"geo.txt); write FORMAT:PATH with FORMAT one of {', '.join(FORMATS)}")
+
+
+def parse_export(text: str) -> ExportSpec:
+    """``FORMAT:PATH`` (``metashape:ms.csv``) or a path whose extension names the format (``stations.kml``)."""
+    head, sep, tail = text.partition(":")
+    if sep and head in FORMATS:
+        if not tail:
+            raise ExportError(f"--export {text!r}: no file after {head}:")
+        return ExportSpec(head, Path(tail))
+    if sep and head and len(head) > 1 and "/" not in head and "\\" not in head:
+        raise ExportError(f"--export {text!r}: unknown format {head!r}; choose one of {', '.join(FORMATS)}")
+    return ExportSpec(format_of(text), Path(text))
+
+
+def check_exports(specs: Sequence[ExportSpec], frames: OutputFrames | None) -> None:
+    """Everything that can be checked before processing: known formats, a projected CRS for the formats that
+    need one, the EGM96 grid for KML, and no two outputs on one path."""
+    seen: dict[Path, str] = {}
+    for spec in specs:
+        format_of(spec.path, spec.fmt)
+        if spec.fmt in NEEDS_CRS and (frames is None or frames.horizontal is None):
+            raise ExportError(f"{spec.fmt} ({spec.path}) writes projected coordinates and its angles: give --crs "
+                              "EPSG:xxxx (e.g. EPSG:3765, HTRS96/TM)")
+        if spec.fmt == "kml":
+            _kml_frames(frames).egm96([45.0], [15.0], [0.0])  # the grid is there, or GeoidGridError now
+        key = spec.path.resolve()
+        if key in seen:
+            raise ExportError(f"{spec.path} is asked for twice ({seen[key]} and {spec.fmt})")
+        seen[key] = spec.fmt
+
+
+def _kml_frames(frames: OutputFrames | None) -> OutputFrames:
+    from georef.frames.heights import OutputFrames
+
+    return frames if frames is not None else OutputFrames()
 
 
 def _georeferenced(table: pd.DataFrame) -> pd.DataFrame:
@@ -43,58 +117,94 @@ def _georeferenced(table: pd.DataFrame) -> pd.DataFrame:
     return table[table["lat"].notna()]
 
 
-def _require_grid(table: pd.DataFrame, fmt: str) -> None:
-    if "easting" not in table:
-        raise ValueError(f"--format {fmt} writes projected coordinates and omega/phi/kappa: give --crs EPSG:xxxx")
+def _labels(rows: pd.DataFrame) -> pd.Series:
+    return (rows["image"] if "image" in rows else rows["frame"]).astype(str)
 
 
-def write_metashape(table: pd.DataFrame, path: Path) -> None:
-    _require_grid(table, "metashape")
-    rows = _georeferenced(table)
-    horizontal = np.hypot(rows["sigma_n"], rows["sigma_e"]) / np.sqrt(2.0)
-    out = pd.DataFrame({"label": rows["frame"], "x": rows["easting"].round(4), "y": rows["northing"].round(4),
-                        "z": rows["height"].round(4), "omega": rows["omega"].round(6), "phi": rows["phi"].round(6),
-                        "kappa": rows["kappa"].round(6), "x_accuracy": horizontal.round(4),
-                        "y_accuracy": horizontal.round(4), "z_accuracy": rows["sigma_u"].round(4),
-                        "omega_accuracy": rows["sigma_roll"].round(5), "phi_accuracy": rows["sigma_pitch"].round(5),
-                        "kappa_accuracy": rows["sigma_yaw"].round(5)})
+def _heights(rows: pd.DataFrame, frames: OutputFrames | None) -> pd.Series:
+    if frames is not None and frames.height == "orthometric":
+        return rows["height_orthometric"]
+    return rows["height"]
+
+
+def _grid(table: pd.DataFrame, fmt: str, frames: OutputFrames | None) -> pd.DataFrame:
+    if frames is None or frames.horizontal is None or "easting" not in table:
+        raise ExportError(f"{fmt} writes projected coordinates and its angles: give --crs EPSG:xxxx")
+    return _georeferenced(table)
+
+
+def _horizontal_sigma(rows: pd.DataFrame) -> pd.Series:
+    """One horizontal σ per row for formats with a single value: the per-axis σ of the isotropic distribution
+    with the same total variance, sqrt((σx² + σy²) / 2) — not hypot(σx, σy), which is √2 times a per-axis σ."""
+    return np.sqrt((rows["sigma_x"] ** 2 + rows["sigma_y"] ** 2) / 2.0)
+
+
+def write_metashape(table: pd.DataFrame, path: Path, frames: OutputFrames | None) -> None:
+    rows = _grid(table, "metashape", frames)
+    out = pd.DataFrame({"label": _labels(rows), "x": rows["easting"].round(4), "y": rows["northing"].round(4),
+                        "z": _heights(rows, frames).round(4), "omega": rows["omega"].round(6),
+                        "phi": rows["phi"].round(6), "kappa": rows["kappa"].round(6),
+                        "x_accuracy": rows["sigma_x"].round(4), "y_accuracy": rows["sigma_y"].round(4),
+                        "z_accuracy": rows["sigma_u"].round(4), "omega_accuracy": rows["sigma_omega"].round(5),
+                        "phi_accuracy": rows["sigma_phi"].round(5), "kappa_accuracy": rows["sigma_kappa"].round(5)})
+    assert frames is not None
     with atomic_write(path) as handle:
-        handle.write("# georef EO for Agisoft Metashape Import Reference: " + ",".join(out.columns) + "\n")
+        handle.write(f"# georef EO for Agisoft Metashape Import Reference ({frames.horizontal_name}, heights "
+                     f"{frames.height_name}, angles in degrees, accuracies 1-sigma): " + ",".join(out.columns) + "\n")
         out.to_csv(handle, index=False, header=False, lineterminator="\n")
 
 
-def write_pix4d(table: pd.DataFrame, path: Path) -> None:
-    _require_grid(table, "pix4d")
-    rows = _georeferenced(table)
-    out = pd.DataFrame({"imagename": rows["frame"], "X": rows["easting"].round(4), "Y": rows["northing"].round(4),
-                        "Z": rows["height"].round(4), "omega": rows["omega"].round(6), "phi": rows["phi"].round(6),
-                        "kappa": rows["kappa"].round(6),
-                        "accuracy_horz": np.hypot(rows["sigma_n"], rows["sigma_e"]).round(4),
-                        "accuracy_vert": rows["sigma_u"].round(4)})
+def northing_first(frames: OutputFrames) -> bool:
+    """True when the projected CRS's first axis points north or south (EPSG:31466, EPSG:3006)."""
+    assert frames.horizontal is not None
+    return frames.horizontal.axis_info[0].direction.lower() in ("north", "south")
+
+
+def write_pix4d(table: pd.DataFrame, path: Path, frames: OutputFrames | None) -> None:
+    rows = _grid(table, "pix4d", frames)
+    assert frames is not None
+    first, second = ("northing", "easting") if northing_first(frames) else ("easting", "northing")
+    out = pd.DataFrame({"imagename": _labels(rows), first: rows[first].round(4), second: rows[second].round(4),
+                        "z": _heights(rows, frames).round(4), "yaw": rows["yaw"].round(6),
+                        "pitch": rows["pitch"].round(6), "roll": rows["roll"].round(6),
+                        "accuracy_horz": _horizontal_sigma(rows).round(4), "accuracy_vert": rows["sigma_u"].round(4)})
     with atomic_write(path) as handle:
         handle.write("#" + ",".join(out.columns) + "\n")
         out.to_csv(handle, index=False, header=False, lineterminator="\n")
 
 
-def write_odm(table: pd.DataFrame, path: Path, crs: str) -> None:
-    _require_grid(table, "odm")
-    rows = _georeferenced(table)
+def odm_header(frames: OutputFrames) -> str:
+    """The first line of geo.txt: ``EPSG:nnnn`` of the horizontal CRS (ODM parses nothing else but a PROJ.4
+    string or ``WGS84 UTM nnX``); a CRS without an EPSG code as its PROJ.4 string."""
+    assert frames.horizontal is not None
+    code = frames.horizontal.to_epsg()
+    return f"EPSG:{code}" if code else frames.horizontal.to_proj4()
+
+
+def write_odm(table: pd.DataFrame, path: Path, frames: OutputFrames | None, angles: bool = False) -> None:
+    rows = _grid(table, "odm", frames)
+    assert frames is not None
+    heights = _heights(rows, frames)
+    horizontal = _horizontal_sigma(rows)
     with atomic_write(path) as handle:
-        handle.write(f"{crs}\n")
-        for frame, e, n, h, sn, se, su in zip(rows["frame"], rows["easting"], rows["northing"], rows["height"],
-                                              rows["sigma_n"], rows["sigma_e"], rows["sigma_u"], strict=True):
-            handle.write(f"{frame} {e:.4f} {n:.4f} {h:.4f} 0 0 0 {np.hypot(sn, se):.4f} {su:.4f}\n")
+        handle.write(odm_header(frames) + "\n")
+        for i, label in enumerate(_labels(rows)):
+            r = rows.iloc[i]
+            ypr = f"{r['yaw']:.6f} {r['pitch']:.6f} {r['roll']:.6f}" if angles else "nan nan nan"
+            handle.write(f"{label} {r['easting']:.4f} {r['northing']:.4f} {heights.iloc[i]:.4f} {ypr} "
+                         f"{horizontal.iloc[i]:.4f} {r['sigma_u']:.4f}\n")
 
 
 def write_parge(table: pd.DataFrame, path: Path) -> None:
-    out = table[["frame", "lat", "lon", "height", "roll", "pitch", "yaw_minus_track", "flag"]].copy()
+    columns = ["frame", *(["image"] if "image" in table else []), "lat", "lon", "height", "roll", "pitch",
+               "yaw_minus_track", "flag"]
     with atomic_write(path) as handle:
-        out.to_csv(handle, sep="\t", index=False, float_format="%.9g", lineterminator="\n")
+        table[columns].to_csv(handle, sep="\t", index=False, float_format="%.9g", lineterminator="\n")
 
 
 def _properties(row: pd.Series) -> dict:
-    return {key: (None if isinstance(value, float) and np.isnan(value) else
-                  (value.item() if hasattr(value, "item") else value)) for key, value in row.items()}
+    return {str(key): (None if isinstance(value, float) and not np.isfinite(value) else
+                       (value.item() if hasattr(value, "item") else value)) for key, value in row.items()}
 
 
 def write_geojson(table: pd.DataFrame, path: Path) -> None:
@@ -104,36 +214,50 @@ def write_geojson(table: pd.DataFrame, path: Path) -> None:
                                                                round(float(r["height"]), 4)]},
                  "properties": _properties(r)} for _, r in rows.iterrows()]
     with atomic_write(path) as handle:
-        json.dump({"type": "FeatureCollection", "features": features}, handle)
+        json.dump({"type": "FeatureCollection", "features": features}, handle, allow_nan=False)
 
 
-def write_kml(table: pd.DataFrame, path: Path) -> None:
-    rows = _georeferenced(table)
+def write_kml(table: pd.DataFrame, path: Path, frames: OutputFrames | None) -> None:
+    rows = _georeferenced(table).copy()
+    rows["height_egm96"] = _kml_frames(frames).egm96(rows["lat"], rows["lon"], rows["height"])
+    labels = _labels(rows)
     parts = ['<?xml version="1.0" encoding="UTF-8"?>', '<kml xmlns="http://www.opengis.net/kml/2.2">', "<Document>",
-             "<name>georef exposure stations</name>"]
-    for _, r in rows.iterrows():
-        data = "".join(f'<Data name="{escape(str(k))}"><value>{escape(str(v))}</value></Data>'
+             "<name>georef exposure stations</name>",
+             "<description>Camera perspective centres; altitude above sea level (EGM96 height)</description>"]
+    for (_, r), label in zip(rows.iterrows(), labels, strict=True):
+        data = "".join(f"<Data name={quoteattr(str(k))}><value>{escape('' if v is None else str(v))}</value></Data>"
                        for k, v in _properties(r).items())
-        parts.append(f"<Placemark><name>{escape(str(r['frame']))}</name><ExtendedData>{data}</ExtendedData>"
+        parts.append(f"<Placemark><name>{escape(label)}</name><ExtendedData>{data}</ExtendedData>"
                      f"<Point><altitudeMode>absolute</altitudeMode><coordinates>{r['lon']:.10f},{r['lat']:.10f},"
-                     f"{r['height']:.4f}</coordinates></Point></Placemark>")
+                     f"{r['height_egm96']:.4f}</coordinates></Point></Placemark>")
     parts += ["</Document>", "</kml>"]
     with atomic_write(path) as handle:
         handle.write("\n".join(parts) + "\n")
 
 
-def write_export(table: pd.DataFrame, path: Path | str, fmt: str, crs: str | None = None) -> Path:
-    """Write ``table`` in format ``fmt`` (one of :data:`FORMATS`)."""
+def write_export(table: pd.DataFrame, path: Path | str, fmt: str, crs: str | None = None,
+                 frames: OutputFrames | None = None, odm_angles: bool = False) -> Path:
+    """Write ``table`` in format ``fmt`` (one of :data:`FORMATS`). ``frames`` gives the CRS and heights of the
+    run (``crs`` alone: ellipsoidal heights in that CRS)."""
     path = Path(path)
-    if fmt not in FORMATS:
-        raise ValueError(f"unknown --format {fmt!r}; choose one of {', '.join(FORMATS)}")
-    if fmt in NEEDS_CRS and not crs:
-        raise ValueError(f"--format {fmt} writes projected coordinates and omega/phi/kappa: give --crs EPSG:xxxx")
+    format_of(path, fmt)
+    if frames is None and crs:
+        from georef.frames.heights import OutputFrames
+
+        frames = OutputFrames(crs)
+    check_exports([ExportSpec(fmt, path)], frames)
     if fmt == "csv":
         write_eo_csv(table, path)
+    elif fmt == "metashape":
+        write_metashape(table, path, frames)
+    elif fmt == "pix4d":
+        write_pix4d(table, path, frames)
     elif fmt == "odm":
-        write_odm(table, path, crs or "")
+        write_odm(table, path, frames, angles=odm_angles)
+    elif fmt == "parge":
+        write_parge(table, path)
+    elif fmt == "geojson":
+        write_geojson(table, path)
     else:
-        {"metashape": write_metashape, "pix4d": write_pix4d, "parge": write_parge, "geojson": write_geojson,
-         "kml": write_kml}[fmt](table, path)
+        write_kml(table, path, frames)
     return path
