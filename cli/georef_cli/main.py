@@ -219,8 +219,8 @@ def process(
         _print_summary(result, output, verbose)
         for spec in specs[1:]:
             out.print(f"also wrote {escape(spec.fmt)} -> {escape(str(spec.path))}", highlight=False)
-    for warning in result.summary()["geodesy_warnings"]:
-        console.print(f"[yellow]warning:[/] {escape(str(warning))}", highlight=False)
+        for warning in result.summary()["geodesy_warnings"]:
+            console.print(f"[yellow]warning:[/] {escape(str(warning))}", highlight=False)
     _print_verdict(verdict, quiet)
     if not verdict.passed:
         raise typer.Exit(code=EXIT_QC_FAILED)

@@ -12,7 +12,8 @@ from georef.io.atomic import atomic_write
 _FORMATS = {"time": 3, "lat": 10, "lon": 10, "height": 4, "roll": 6, "pitch": 6, "yaw": 6,
             "sigma_n": 4, "sigma_e": 4, "sigma_u": 4, "sigma_roll": 5, "sigma_pitch": 5, "sigma_yaw": 5,
             "track": 5, "yaw_minus_track": 5, "easting": 4, "northing": 4, "omega": 6, "phi": 6,
-            "kappa": 6}
+            "kappa": 6, "height_orthometric": 4, "sigma_x": 4, "sigma_y": 4, "sigma_omega": 5, "sigma_phi": 5,
+            "sigma_kappa": 5}
 
 
 def write_eo_csv(table: pd.DataFrame, path: Path | str) -> Path:
@@ -28,5 +29,5 @@ def write_eo_csv(table: pd.DataFrame, path: Path | str) -> Path:
 
 def read_eo_csv(path: Path | str) -> pd.DataFrame:
     """Read an EO table written by :func:`write_eo_csv` (frame ids kept as text)."""
-    return pd.read_csv(path, dtype={"frame": str, "flag": str}, keep_default_na=False,
+    return pd.read_csv(path, dtype={"frame": str, "image": str, "flag": str}, keep_default_na=False,
                        na_values={c: [""] for c in _FORMATS})
