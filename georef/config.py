@@ -171,6 +171,8 @@ def load_config(path: Path | str, base: ProcessingConfig | None = None) -> Proce
                 raise InputError(path, None, f"{section}.{key}", f"unknown key; [{section}] takes "
                                  f"{', '.join(sorted(_SECTIONS[section]))}")
             values[key] = tuple(value) if isinstance(value, list) else value
+            if key == "image_names" and isinstance(value, str) and "{" not in value and not Path(value).is_absolute():
+                values[key] = str(path.parent / value)  # a name table beside flight.toml, wherever georef runs
     try:
         return replace(base or ProcessingConfig(), **values)
     except (TypeError, ValueError) as exc:
