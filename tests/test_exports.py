@@ -383,6 +383,16 @@ def test_parge_keeps_every_frame(tmp_path, ortho):
 
 
 # --------------------------------------------------------------------------------------------- heights ---
+def test_the_egm96_grid_is_installed():
+    """Orthometric heights and KML need PROJ's EGM96 grid (Debian proj-data, `make geoid`): this fails, never
+    skips, when it is missing (CI installs it)."""
+    try:
+        frames = OutputFrames(height="orthometric")
+    except GeoidGridError as exc:
+        pytest.fail(f"the EGM96 grid is missing: {exc}. Run `make geoid` (apt-get install proj-data).")
+    assert "WGS 84 to EGM96 height" in str(frames.describe()[0])
+
+
 def test_orthometric_heights_agree_with_proj(ortho):
     rows = _stations(ortho.table)
     expected = _egm96(rows["lat"], rows["lon"], rows["height"])
