@@ -74,8 +74,7 @@ def _main(
     version: Annotated[bool, typer.Option("--version", callback=_version_callback, is_eager=True,
                                           help="Print georef's version and exit.")] = False,
 ) -> None:
-    """georef: GPS/INS direct georeferencing of aerial imagery. Units: metres, degrees, seconds; body axes x
-    forward, y right, z down."""
+    """The options before the command (``georef --version``); the help text is the app's."""
 
 
 def _messages(*stdout_outputs: Path | None) -> Console:
@@ -152,7 +151,7 @@ def _stage_progress(quiet: bool, total: int) -> tuple[Progress | None, Callable[
         if not state["first"]:
             progress.advance(task)
         state["first"] = False
-        progress.update(task, description=description)
+        progress.update(task, description=escape(description))
 
     return progress, step
 
