@@ -10,6 +10,14 @@ others go on. Every flight gets ``<out>/<flight>/eo.csv`` and ``<out>/<flight>/g
 Each flight's quality checks (:mod:`georef.qc`) run on the worker and come back as plain text in the row:
 ``qc`` is ``"passed"`` or ``"failed: <check names>"`` (empty when the flight did not run), ``qc_details`` the
 failing and warning checks' messages, one ``"<status> <name>: <message>"`` each, joined by ``" | "``.
+
+A flight that did not run has ``status`` ``"failed"`` and ``failure`` ``"input"`` (its input or configuration is
+wrong: a :class:`~georef.io.errors.GeorefError`, ``ValueError``, ``KeyError`` or ``OSError``, the errors the CLI
+reports as exit code 2) or ``"internal"`` (anything else, a bug in georef, or a worker that died: exit code 3).
+The row dictionaries that :func:`process_flight` returns (and ``on_done`` of :func:`run_batch` receives) carry
+three more entries that the CSV summary leaves out: ``checks`` (the verdict's checks as dictionaries, ``None``
+when the flight did not run), ``summary`` (:meth:`georef.pipeline.ProcessResult.summary`, ``None`` likewise) and
+``outputs`` (the files written for the flight: ``what``, ``format``, ``path``).
 """
 
 from __future__ import annotations
@@ -24,10 +32,14 @@ import numpy as np
 import pandas as pd
 
 from georef.io.atomic import atomic_write
-from georef.io.errors import InputError
+from georef.io.errors import GeorefError, InputError
 
 SUMMARY_COLUMNS = ["flight", "status", "method", "frames", "frames_flagged", "gnss_epochs", "rejected_fixes",
-                   "innovation_mean_nis", "innovation_share_over_gate", "qc", "qc_details", "runtime_s", "message"]
+                   "innovation_mean_nis", "innovation_share_over_gate", "qc", "qc_details", "runtime_s", "message",
+                   "failure"]
+#: the errors that mean the flight's input or configuration is wrong (the CLI's exit code 2); any other
+#: exception is a bug in georef (exit code 3)
+USER_ERRORS = (GeorefError, ValueError, KeyError, OSError)
 
 
 @dataclass(frozen=True)
@@ -80,7 +92,7 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None) 
     out = Path(output_root) / job.flight
     out.mkdir(parents=True, exist_ok=True)
     row: dict = dict.fromkeys(SUMMARY_COLUMNS)
-    row.update(flight=job.flight, status="failed", method=method or "")
+    row.update(flight=job.flight, status="failed", method=method or "", checks=None, summary=None, outputs=[])
     log_lines = [f"flight {job.flight}", f"POS {job.pos}", f"camera {job.camera}", f"config {job.config}"]
     try:
         cfg = load_config(job.config) if job.config else ProcessingConfig()
@@ -88,6 +100,7 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None) 
             cfg = cfg.updated(method=method)
         result = process(job.pos, job.camera, cfg)
         write_eo_csv(result.table, out / "eo.csv")
+        row["outputs"].append({"what": "table", "format": "csv", "path": str(out / "eo.csv")})
         summary = result.summary()
         gnss = result.nav.gnss
         used = gnss.status >= 1
@@ -102,19 +115,23 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None) 
         # the verdict is judged here, on the worker, and travels back as plain text
         verdict = assess_result(result)
         row.update(qc="passed" if verdict.passed else "failed: " + ", ".join(c.name for c in verdict.failures),
-                   qc_details=" | ".join(c.line() for c in verdict.checks if c.status != "pass"))
+                   qc_details=" | ".join(c.line() for c in verdict.checks if c.status != "pass"),
+                   checks=verdict.to_dicts(), summary=summary)
         log_lines += [f"{key}: {value}" for key, value in summary.items()]
         log_lines += [f"QC {check.line()}" for check in verdict.checks]
         log_lines += [f"notice: {notice}" for notice in result.notices]
     except Exception as exc:  # noqa: BLE001 - a failed flight is reported, the batch goes on
         row["message"] = f"{type(exc).__name__}: {exc}"
-        log_lines.append(f"FAILED: {row['message']}")
-        if not isinstance(exc, InputError | ValueError):
+        row["status"] = "failed"
+        row["failure"] = "input" if isinstance(exc, USER_ERRORS) else "internal"
+        log_lines.append(f"FAILED ({row['failure']}): {row['message']}")
+        if row["failure"] == "internal":
             log_lines.append(traceback.format_exc())
     row["runtime_s"] = round(time.perf_counter() - start, 3)
     log_lines.append(f"status {row['status']} in {row['runtime_s']} s")
     with atomic_write(out / "georef.log") as handle:
         handle.write("\n".join(log_lines) + "\n")
+    row["outputs"].append({"what": "log", "format": "text", "path": str(out / "georef.log")})
     return row
 
 
@@ -176,7 +193,8 @@ def run_batch(jobs: list[FlightJob], output_root: Path | str, method: str | None
             except Exception as exc:  # noqa: BLE001 - a worker that died
                 flight = future.key.removeprefix("flight-") if isinstance(future.key, str) else str(future.key)
                 row = dict.fromkeys(SUMMARY_COLUMNS)
-                row.update(flight=flight, status="failed", message=f"worker error: {exc}")
+                row.update(flight=flight, status="failed", message=f"worker error: {exc}", failure="internal",
+                           checks=None, summary=None, outputs=[])
             rows.append(row)
             if on_done is not None:
                 on_done(row)

@@ -186,7 +186,15 @@ def test_bad_vehicle_is_a_user_error(tmp_path):
     result = RUNNER.invoke(app, ["process", str(DATA / "POS.txt"), str(DATA / "Kamera.txt"), "-o",
                                  str(tmp_path / "eo.csv"), "--vehicle", "boat"])
     assert result.exit_code == 2
+    assert "'boat' is not one of 'auto', 'ground', 'air'" in result.output
+    # the same value in flight.toml is refused by the library, with its own message
+    config = tmp_path / "flight.toml"
+    config.write_text((DATA / "flight.toml").read_text() + '\nvehicle = "boat"\n')
+    result = RUNNER.invoke(app, ["process", str(DATA / "POS.txt"), str(DATA / "Kamera.txt"), "-o",
+                                 str(tmp_path / "eo.csv"), "--config", str(config)])
+    assert result.exit_code == 2
     assert "vehicle must be 'auto', 'ground' or 'air', got 'boat'" in result.output
+    assert not (tmp_path / "eo.csv").exists()
 
 
 def test_user_text_is_printed_as_is(tmp_path):
@@ -202,3 +210,345 @@ def test_user_text_is_printed_as_is(tmp_path):
                                  str(folder / "flight.toml"), "-o", str(folder / "eo.csv")])
     assert result.exit_code == 0, result.output
     assert "flight[red]/POS.txt, lines 1852, 6052" in result.output     # the notice, path intact
+
+
+# ---- CLI conventions (issue 12): --version, stdout, choices, markup, evaluate's checks, shared options, summaries --
+def _pyproject_version() -> str:
+    import tomllib
+
+    return tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())["project"]["version"]
+
+
+def _strict_json(text: str) -> dict:
+    """JSON as a strict parser reads it: NaN or Infinity (which Python's json would accept) fail the test."""
+    import json
+
+    def refuse(name: str) -> None:
+        raise AssertionError(f"not valid JSON: {name}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_version_prints_the_installed_version():
+    result = RUNNER.invoke(app, ["--version"])
+    assert result.exit_code == 0, result.output
+    assert result.stdout == f"georef {_pyproject_version()}\n"
+    # eager: given with a command, it still prints the version and runs nothing
+    result = RUNNER.invoke(app, ["--version", "process", "missing.txt", "missing.txt"])
+    assert result.exit_code == 0 and result.stdout.startswith("georef ")
+
+
+@pytest.fixture(scope="module")
+def bundled_run(tmp_path_factory) -> dict:
+    """One `georef process` of the bundled flight to a file, with its summary JSON and report."""
+    folder = tmp_path_factory.mktemp("bundled")
+    eo, summary, report = folder / "eo.csv", folder / "summary.json", folder / "report.html"
+    result = RUNNER.invoke(app, ["process", str(DATA / "POS.txt"), str(DATA / "Kamera.txt"), "--config",
+                                 str(DATA / "flight.toml"), "-o", str(eo), "--summary-json", str(summary),
+                                 "--report", str(report)])
+    assert result.exit_code == 0, result.output
+    return {"eo": eo, "summary": summary, "report": report, "output": result.output}
+
+
+def test_stdout_output_gives_a_clean_table(bundled_run, tmp_path):
+    """`georef process ... -o - > eo.csv`, as a shell runs it: stdout holds the table and nothing else, byte for
+    byte what -o FILE writes; the run summary and the verdict are on stderr; no file named '-' appears."""
+    import subprocess
+    import sys
+
+    georef = Path(sys.executable).parent / "georef"
+    with (tmp_path / "eo.csv").open("wb") as stdout:
+        run = subprocess.run([str(georef), "process", str(DATA / "POS.txt"), str(DATA / "Kamera.txt"), "--config",
+                              str(DATA / "flight.toml"), "-o", "-"], stdout=stdout, stderr=subprocess.PIPE,
+                             cwd=tmp_path, timeout=300, check=False)
+    assert run.returncode == 0, run.stderr.decode()
+    assert (tmp_path / "eo.csv").read_bytes() == bundled_run["eo"].read_bytes()
+    assert not (tmp_path / "-").exists()
+    stderr = run.stderr.decode()
+    assert "frames written" in stderr and "standard output" in stderr and "QC passed" in stderr
+
+
+def test_stdout_for_fuse_and_attitude_and_stdin_for_evaluate(sim_flight, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    common = ["fuse", "--imu", str(sim_flight / "imu.csv"), "--gnss", str(sim_flight / "gnss.csv"), "--config",
+              str(sim_flight / "flight.toml")]
+    result = RUNNER.invoke(app, [*common, "-o", "-", "--summary-json", "summary.json"])
+    assert result.exit_code == 0, result.output
+    assert result.stdout.startswith("time,") and "QC passed" not in result.stdout
+    assert "trajectory rows -> standard output" in result.stderr and "QC passed" in result.stderr
+    trajectory = pd.read_csv(__import__("io").StringIO(result.stdout))
+    summary = _strict_json((tmp_path / "summary.json").read_text())
+    assert summary["summary"]["trajectory_rows"] == trajectory["lat"].notna().sum() > 1000
+    assert not (tmp_path / "-").exists()
+    # attitude: the table on stdout, its one-line summary on stderr
+    result = RUNNER.invoke(app, ["attitude", "--imu", str(sim_flight / "imu.csv"), "--method", "complementary",
+                                 "-o", "-"])
+    assert result.exit_code == 0, result.output
+    assert result.stdout.startswith("time,") and "samples -> standard output" in result.stderr
+    # evaluate reads the EO table from stdin: georef process ... -o - | georef evaluate - truth.csv
+    eo = RUNNER.invoke(app, ["process", str(sim_flight / "POS.txt"), str(sim_flight / "Kamera.txt"), "--config",
+                             str(sim_flight / "flight.toml"), "-o", "-", "-q"])
+    assert eo.exit_code == 0, eo.output
+    piped = RUNNER.invoke(app, ["evaluate", "-", str(sim_flight / "truth.csv")], input=eo.stdout)
+    (tmp_path / "eo.csv").write_text(eo.stdout)
+    on_disk = RUNNER.invoke(app, ["evaluate", str(tmp_path / "eo.csv"), str(sim_flight / "truth.csv")])
+    assert piped.exit_code == 0 and on_disk.exit_code == 0, piped.output
+    figures = re.findall(r"(\w+_rms_\w+)\s+│\s+([\d.]+)", piped.stdout)
+    assert len(figures) == 5 and figures == re.findall(r"(\w+_rms_\w+)\s+│\s+([\d.]+)", on_disk.stdout)
+
+
+def test_stdout_is_refused_where_it_cannot_work(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    base = ["process", str(DATA / "POS.txt"), str(DATA / "Kamera.txt"), "--config", str(DATA / "flight.toml")]
+    both = RUNNER.invoke(app, [*base, "-o", "-", "--summary-json", "-"])
+    assert both.exit_code == 2 and "only one output can go to standard output" in both.output
+    report = RUNNER.invoke(app, [*base, "-o", "eo.csv", "--report", "-"])
+    assert report.exit_code == 2 and "--report cannot be '-'" in report.output
+    batch = RUNNER.invoke(app, ["batch", str(tmp_path), "-o", "-"])
+    assert batch.exit_code == 2 and "-o cannot be '-'" in batch.output
+    # refused before any processing: nothing written
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("args, wrong", [
+    (["process", "no_pos.txt", "no_cam.txt", "--method", "kalman"], "'kalman' is not one of 'rts', 'ekf', 'axis', "
+                                                                     "'graph'"),
+    (["fuse", "--imu", "no.csv", "--gnss", "no.csv", "--method", "axis"], "'axis' is not one of 'rts', 'ekf'"),
+    (["batch", "nowhere", "--method", "lsq"], "'lsq' is not one of 'rts', 'ekf', 'axis', 'graph'"),
+    (["attitude", "--imu", "no.csv", "--method", "madgwick"], "'madgwick' is not one of 'complementary', 'kf', "
+                                                              "'mekf', 'ukf'"),
+    (["fuse", "--imu", "no.csv", "--gnss", "no.csv", "--vehicle", "boat"], "'boat' is not one of 'auto', 'ground'"),
+])
+def test_choices_are_checked_before_any_file_is_read(args, wrong):
+    """The files do not exist: a choice checked after reading them would report the missing file instead."""
+    result = RUNNER.invoke(app, args)
+    assert result.exit_code == 2
+    assert wrong in result.output and "not found" not in result.output
+
+
+def test_choice_lists_match_the_library_and_ignore_case(sim_flight, tmp_path):
+    from georef_cli import options
+
+    from georef.attitude.run import METHODS as ATTITUDE_METHODS
+    from georef.config import METHODS
+
+    assert [m.value for m in options.Method] == list(METHODS)
+    assert [m.value for m in options.AttitudeMethodChoice] == list(ATTITUDE_METHODS)
+    help_text = RUNNER.invoke(app, ["process", "--help"], terminal_width=200).output
+    assert "<rts|ekf|axis|graph>" in help_text and "<auto|ground|air>" in help_text
+    upper = RUNNER.invoke(app, ["attitude", "--imu", str(sim_flight / "imu.csv"), "--method", "KF", "-o",
+                                str(tmp_path / "upper.csv")])
+    lower = RUNNER.invoke(app, ["attitude", "--imu", str(sim_flight / "imu.csv"), "--method", "kf", "-o",
+                                str(tmp_path / "lower.csv")])
+    assert upper.exit_code == lower.exit_code == 0, upper.output
+    assert "(kf)" in upper.output
+    assert (tmp_path / "upper.csv").read_bytes() == (tmp_path / "lower.csv").read_bytes()
+
+
+def test_shared_options_have_one_definition():
+    """Every command that takes --quiet, --config, --verbose, --summary-json, --gnss-lever-arm, --gnss-sigma,
+    --gnss-latency or --vehicle takes the same option: same names, same help, same type."""
+    import typer
+
+    group = typer.main.get_command(app)
+    seen: dict[str, list[tuple]] = {}
+    for name, command in group.commands.items():
+        for param in command.params:
+            if param.name in ("quiet", "config", "verbose", "summary_json", "gnss_lever_arm", "gnss_sigma",
+                              "gnss_latency", "vehicle") and name != "simulate":
+                seen.setdefault(param.name, []).append(
+                    (tuple(param.opts), tuple(param.secondary_opts), param.help, param.type_descriptor.annotation))
+    assert len(seen["quiet"]) >= 5 and len(seen["summary_json"]) == 3 and len(seen["config"]) >= 2
+    for name, definitions in seen.items():
+        assert len(set(definitions)) == 1, (name, definitions)
+
+
+def test_markup_in_user_text_is_printed_as_is(sim_flight, tmp_path):
+    """Square brackets in paths, TOML sections and column names reach the terminal unchanged."""
+    folder = tmp_path / "flight[red]"
+    folder.mkdir()
+    config = folder / "flight.toml"
+    config.write_text("[bar]\nx = 1\n")
+    section = RUNNER.invoke(app, ["process", str(DATA / "POS.txt"), str(DATA / "Kamera.txt"), "--config",
+                                  str(config), "-o", str(folder / "eo.csv")])
+    assert section.exit_code == 2 and "flight[red]/flight.toml" in section.output
+    assert "unknown section [bar]" in section.output
+    config.write_text("[imu]\nbogus = 1\n")
+    key = RUNNER.invoke(app, ["process", str(DATA / "POS.txt"), str(DATA / "Kamera.txt"), "--config", str(config),
+                              "-o", str(folder / "eo.csv")])
+    assert key.exit_code == 2 and "unknown key; [imu] takes accel_bias_corr_time_s" in key.output
+    config.write_text('[pos_columns]\nacc_x = "ACC[X]"\n')
+    column = RUNNER.invoke(app, ["process", str(DATA / "POS.txt"), str(DATA / "Kamera.txt"), "--config",
+                                 str(config), "-o", str(folder / "eo.csv")])
+    assert column.exit_code == 2
+    assert "required column 'ACC[X]' is missing" in column.output and "STATUS[HEX]" in column.output
+    for args in (["info", str(folder / "POS.txt")], ["fuse", "--imu", str(folder / "imu.csv"), "--gnss",
+                                                      str(folder / "gnss.csv")],
+                 ["attitude", "--imu", str(folder / "imu.csv")], ["evaluate", str(folder / "eo.csv"),
+                                                                   str(folder / "truth.csv")]):
+        result = RUNNER.invoke(app, args)
+        assert result.exit_code == 2 and "flight[red]/" in result.output, (args, result.output)
+    # what the commands print on success
+    simulated = RUNNER.invoke(app, ["simulate", str(folder / "sim[bold]"), "--duration", "60", "--seed", "2"])
+    assert simulated.exit_code == 0 and "flight[red]/sim[bold]/POS.txt" in simulated.output
+    fused = RUNNER.invoke(app, ["fuse", "--imu", str(sim_flight / "imu.csv"), "--gnss", str(sim_flight / "gnss.csv"),
+                                "-o", str(folder / "traj[x].csv")])
+    assert fused.exit_code in (0, 4) and "flight[red]/traj[x].csv" in fused.output
+    attitude = RUNNER.invoke(app, ["attitude", "--imu", str(sim_flight / "imu.csv"), "--method", "kf", "-o",
+                                   str(folder / "att[i].csv")])
+    assert attitude.exit_code == 0 and "flight[red]/att[i].csv" in attitude.output
+
+
+def test_evaluate_names_what_is_wrong(bundled_run, tmp_path):
+    eo, truth = bundled_run["eo"], DATA / "truth.csv"
+    # the arguments swapped: the reference has no sigma columns, the EO table has them
+    swapped = RUNNER.invoke(app, ["evaluate", str(truth), str(eo)])
+    assert swapped.exit_code == 2, swapped.output
+    text = re.sub(r"\s+", " ", swapped.output)
+    assert f"{truth}, line 1, column 'sigma_n': the EO table lacks column(s) sigma_n, sigma_e" in text
+    assert "the arguments look swapped" in text and "Traceback" not in text
+    # a reference without a column
+    reference = pd.read_csv(truth)
+    reference.drop(columns="yaw").to_csv(tmp_path / "no_yaw.csv", index=False)
+    no_yaw = RUNNER.invoke(app, ["evaluate", str(eo), str(tmp_path / "no_yaw.csv")])
+    assert no_yaw.exit_code == 2
+    assert "no_yaw.csv, line 1, column 'yaw': the reference lacks column(s) yaw" in re.sub(r"\s+", " ", no_yaw.output)
+    assert "swapped" not in no_yaw.output
+    # a cell that is not a number, on its line
+    bad = reference.astype({"height": object})
+    bad.loc[6, "height"] = "12,5"
+    bad.to_csv(tmp_path / "bad.csv", index=False)
+    cell = RUNNER.invoke(app, ["evaluate", str(eo), str(tmp_path / "bad.csv")])
+    assert cell.exit_code == 2 and "bad.csv, line 8, column 'height': not a number: '12,5'" in cell.output
+    # other frames: fewer rows, or a row at another time
+    reference.iloc[:-3].to_csv(tmp_path / "short.csv", index=False)
+    short = RUNNER.invoke(app, ["evaluate", str(eo), str(tmp_path / "short.csv")])
+    assert short.exit_code == 2 and f"513 frames, but the reference {tmp_path / 'short.csv'} has 510" in \
+        re.sub(r"\s+", " ", short.output)
+    later = reference.copy()
+    later.loc[40:, "time"] += 0.5
+    later.to_csv(tmp_path / "later.csv", index=False)
+    moved = RUNNER.invoke(app, ["evaluate", str(eo), str(tmp_path / "later.csv")])
+    assert moved.exit_code == 2
+    assert f"{eo}, line 42, column 'time': frame '41'" in re.sub(r"\s+", " ", moved.output)
+    # an empty file, a folder
+    (tmp_path / "empty.csv").write_text("")
+    empty = RUNNER.invoke(app, ["evaluate", str(tmp_path / "empty.csv"), str(truth)])
+    assert empty.exit_code == 2 and "empty.csv: EO table: the file is empty" in empty.output
+    folder = RUNNER.invoke(app, ["evaluate", str(eo), str(tmp_path)])
+    assert folder.exit_code == 2 and "reference: a folder, not a CSV file" in folder.output
+    # and the right way round it works
+    right = RUNNER.invoke(app, ["evaluate", str(eo), str(truth)])
+    assert right.exit_code == 0 and "yaw_rms_deg" in right.output
+
+
+def test_summary_json_of_process(bundled_run):
+    summary = _strict_json(bundled_run["summary"].read_text())
+    assert summary["schema"] == 1 and summary["command"] == "process" and summary["exit_code"] == 0
+    assert summary["georef_version"] == _pyproject_version()
+    assert summary["inputs"] == {"pos": str(DATA / "POS.txt"), "camera": str(DATA / "Kamera.txt"),
+                                 "config": str(DATA / "flight.toml")}
+    assert summary["outputs"] == [{"what": "table", "format": "csv", "path": str(bundled_run["eo"])},
+                                  {"what": "report", "format": "html", "path": str(bundled_run["report"])}]
+    assert summary["settings"]["lever_arm_gnss"] == [0.45, 0.15, -1.65] and summary["settings"]["crs"] == "EPSG:3765"
+    table = read_eo_csv(bundled_run["eo"])
+    figures = summary["summary"]
+    assert figures["frames_written"] == len(table) == 513
+    assert figures["frames_flagged"] == int((table["flag"] != "").sum())
+    assert figures["gnss_rejected_lines"] == [3016] and figures["method"] == "rts"
+    assert len(figures["time_span_s"]) == 2 and figures["unit_yaw_drift_deg_per_min"] == pytest.approx(0.5, abs=0.2)
+    qc = summary["qc"]
+    assert qc["passed"] is True and qc["verdict"].startswith("passed")
+    assert {"innovations", "lever arm", "frames"} <= {c["name"] for c in qc["checks"]}
+    assert all(set(c) == {"name", "status", "message"} and c["status"] in ("pass", "warn") for c in qc["checks"])
+    # every key is documented
+    documented = (Path(__file__).resolve().parents[1] / "docs" / "qc.md").read_text()
+    undocumented = [key for key in [*summary, *figures, *summary["outputs"][0], *qc]
+                    if f"`{key}`" not in documented]
+    assert not undocumented, undocumented
+
+
+def test_summary_json_of_a_failed_qc_run(sim_flight, tmp_path):
+    result = RUNNER.invoke(app, ["process", str(sim_flight / "POS.txt"), str(sim_flight / "Kamera.txt"), "--config",
+                                 str(sim_flight / "flight.toml"), "--gnss-lever-arm", "45,0.15,-1.65", "-o",
+                                 str(tmp_path / "eo.csv"), "--summary-json", "-", "-q"])
+    assert result.exit_code == 4
+    summary = _strict_json(result.stdout)        # stdout holds the JSON alone; the QC lines are on stderr
+    assert summary["exit_code"] == 4 and summary["qc"]["passed"] is False
+    lever = next(c for c in summary["qc"]["checks"] if c["name"] == "lever arm")
+    assert lever["status"] == "fail" and "the configuration says 45.00 m" in lever["message"]
+    assert "QC fail lever arm" in result.stderr
+
+
+def _broken_copy(source: Path, target: Path) -> Path:
+    shutil.copytree(source, target)
+    lines = (target / "POS.txt").read_text().splitlines(keepends=True)
+    cells = lines[499].split("\t")
+    cells[1] = "12..5"
+    lines[499] = "\t".join(cells)
+    (target / "POS.txt").write_text("".join(lines))
+    return target
+
+
+def test_batch_exits_non_zero_when_a_flight_failed(sim_flight, tmp_path):
+    """One good flight, one with a broken POS.txt, one that fails its quality checks: exit 2 (a flight did not
+    run on its input; that outranks the QC failure), every other flight written, all of it in the summary JSON."""
+    flights = tmp_path / "flights"
+    flights.mkdir()
+    for name in ("good", "lever"):
+        shutil.copytree(sim_flight, flights / name)
+    toml = flights / "lever" / "flight.toml"
+    toml.write_text(re.sub(r"lever_arm_gnss = \[[^\]]*\]", "lever_arm_gnss = [45, 0.15, -1.65]", toml.read_text()))
+    _broken_copy(sim_flight, flights / "broken[red]")
+    out = tmp_path / "out"
+    result = RUNNER.invoke(app, ["batch", str(flights), "-o", str(out), "--workers", "1", "--summary-json",
+                                 str(tmp_path / "batch.json")])
+    assert result.exit_code == 2, result.output
+    assert "failed: broken[red]: InputError" in result.output and "QC failed: lever" in result.output
+    assert len(read_eo_csv(out / "good" / "eo.csv")) == len(read_eo_csv(out / "lever" / "eo.csv")) > 300
+    summary = pd.read_csv(out / "batch_summary.csv", keep_default_na=False)
+    assert list(summary["flight"]) == ["broken[red]", "good", "lever"]
+    assert list(summary["failure"]) == ["input", "", ""]
+    document = _strict_json((tmp_path / "batch.json").read_text())
+    assert document["command"] == "batch" and document["exit_code"] == 2
+    assert document["georef_version"] == _pyproject_version()
+    assert document["counts"] == {"flights": 3, "ok": 2, "failed_input": 1, "failed_internal": 0, "qc_failed": 1}
+    broken, good, lever = document["flights"]
+    assert broken["status"] == "failed" and broken["failure"] == "input" and broken["qc"] is None
+    assert "line 500" in broken["message"]
+    assert good["qc"]["passed"] is True and good["summary"]["frames_written"] == good["frames"]
+    assert {"what": "table", "format": "csv", "path": str(out / "good" / "eo.csv")} in good["outputs"]
+    assert lever["qc"]["passed"] is False
+    assert any(c["name"] == "lever arm" and c["status"] == "fail" for c in lever["qc"]["checks"])
+
+
+def test_batch_with_an_internal_error_exits_3(sim_flight, tmp_path, monkeypatch):
+    """A flight that fails on a bug (not on its input) makes the batch exit 3, with the traceback in its log.
+    The flights run in this process (run_batch replaced by a sequential loop) so that the bug can be planted."""
+    import georef.batch
+    import georef.pipeline
+
+    flights = tmp_path / "flights"
+    flights.mkdir()
+    shutil.copytree(sim_flight, flights / "bug")
+    def buggy(*args, **kwargs):
+        raise ZeroDivisionError("a planted bug")
+
+    def sequential(jobs, output_root, method=None, scheduler=None, workers=2, on_done=None):
+        rows = []
+        for job in jobs:
+            rows.append(georef.batch.process_flight(job, str(output_root), method))
+            if on_done:
+                on_done(rows[-1])
+        return pd.DataFrame(rows, columns=georef.batch.SUMMARY_COLUMNS)
+
+    monkeypatch.setattr(georef.pipeline, "process", buggy)
+    monkeypatch.setattr(georef.batch, "run_batch", sequential)
+    result = RUNNER.invoke(app, ["batch", str(flights), "-o", str(tmp_path / "out"), "--method", "axis",
+                                 "--summary-json", "-"])
+    assert result.exit_code == 3, result.output
+    assert "internal error: bug: ZeroDivisionError: a planted bug" in result.stderr
+    document = _strict_json(result.stdout)
+    assert document["exit_code"] == 3 and document["flights"][0]["failure"] == "internal"
+    log = (tmp_path / "out" / "bug" / "georef.log").read_text()
+    assert "FAILED (internal)" in log and "Traceback" in log and "ZeroDivisionError" in log

@@ -4,6 +4,10 @@ Exit codes: 0 done and the quality checks passed; 2 an error in the user's input
 line (file, line, column), never a traceback; 3 an internal error (a bug in georef); 4 the outputs are written
 but the quality checks failed (``docs/qc.md``). Text from the user's files and options is escaped before rich
 prints it (a path such as ``flight[red]/POS.txt`` prints as it is).
+
+Conventions: ``georef --version``; ``-o -`` writes the table to standard output and every message to standard
+error; ``--summary-json FILE`` writes a machine-readable summary (``docs/qc.md``); options shared by several
+commands are defined once, in :mod:`georef_cli.options`.
 """
 
 from __future__ import annotations
@@ -23,8 +27,27 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from georef.config import METHODS, ProcessingConfig, load_config
+from georef.config import ProcessingConfig, load_config
 from georef.io.errors import GeorefError
+
+from .options import (
+    AttitudeMethod,
+    BatchMethod,
+    ConfigFile,
+    FuseMethod,
+    GnssLatency,
+    GnssLeverArm,
+    GnssSigma,
+    ProcessMethod,
+    Quiet,
+    SummaryJson,
+    Vehicle,
+    Verbose,
+    georef_version,
+    output_option,
+    plain,
+)
+from .output import is_stdout, write_json, write_target
 
 #: exit codes (docs/qc.md)
 EXIT_USER_ERROR = 2
@@ -38,6 +61,43 @@ app = typer.Typer(
 )
 console = Console(stderr=True, soft_wrap=True)
 out = Console()
+
+
+def _version_callback(show: bool) -> None:
+    if show:
+        out.print(f"georef {escape(georef_version())}", highlight=False)
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Annotated[bool, typer.Option("--version", callback=_version_callback, is_eager=True,
+                                          help="Print georef's version and exit.")] = False,
+) -> None:
+    """The options before the command (``georef --version``); the help text is the app's."""
+
+
+def _messages(*stdout_outputs: Path | None) -> Console:
+    """The console for the run's summary: standard output, unless one of ``stdout_outputs`` is ``-`` (then standard
+    output carries that data and nothing else, and the summary goes to standard error)."""
+    return console if any(is_stdout(p) for p in stdout_outputs) else out
+
+
+def _one_stdout(**paths: Path | None) -> None:
+    """Refuse two outputs on standard output before anything runs."""
+    named = [name for name, path in paths.items() if is_stdout(path)]
+    if len(named) > 1:
+        raise typer.BadParameter(f"only one output can go to standard output ('-'), got {' and '.join(named)}")
+
+
+def _target(path: Path) -> str:
+    """Where an output went, as rich markup: the escaped path, or "standard output" for ``-``."""
+    return "standard output" if is_stdout(path) else escape(str(path))
+
+
+def _not_stdout(path: Path | None, option: str, why: str) -> None:
+    if is_stdout(path):
+        raise typer.BadParameter(f"{option} cannot be '-' (standard output): {why}")
 
 
 def _triple(text: str | None, what: str, unit: str) -> tuple[float, float, float] | None:
@@ -91,15 +151,9 @@ def _stage_progress(quiet: bool, total: int) -> tuple[Progress | None, Callable[
         if not state["first"]:
             progress.advance(task)
         state["first"] = False
-        progress.update(task, description=description)
+        progress.update(task, description=escape(description))
 
     return progress, step
-
-
-GNSS_LATENCY_HELP = ("GNSS time-tag latency in seconds (the fix was measured this long before its time tag); "
-                     "default: estimated and reported, not applied.")
-VEHICLE_HELP = ("auto (non-holonomic constraints when the motion shows a ground vehicle; default), ground (always) "
-                "or air (never).")
 
 
 def _print_verdict(verdict: Any, quiet: bool) -> None:
@@ -124,8 +178,8 @@ def process(
     pos: Annotated[Path, typer.Argument(help="POS unit log (POS.txt, tab separated, iMAR layout).")],
     camera: Annotated[Path, typer.Argument(help="Exposure times: Kamera.txt, or the camera's raw log "
                                                 "(needs --camera-utc-offset).")],
-    output: Annotated[Path | None, typer.Option("-o", "--output", help="EO table to write (default eo.csv); a .kml, "
-                                                ".geojson or geo.txt name writes that format.")] = None,
+    output: Annotated[Path | None, output_option("EO table to write (default eo.csv); a .kml, .geojson or geo.txt "
+                                                 "name writes that format.")] = None,
     output_format: Annotated[str | None, typer.Option(
         "--format", help="Format of -o: csv (the EO table), metashape, pix4d, odm (geo.txt), parge, geojson or kml; "
                          "metashape/pix4d/odm need --crs. Default: from -o's extension, else csv.")] = None,
@@ -137,25 +191,22 @@ def process(
                                                "CRS of a compound --crs such as EPSG:3765+5773).")] = None,
     image_names: Annotated[str | None, typer.Option("--image-names", help="Image file names: a pattern such as "
                                                     "IMG_{frame:04d}.JPG, or a CSV of frame,name.")] = None,
-    config: Annotated[Path | None, typer.Option("--config", help="flight.toml with any of these settings; "
-                                                "command-line options win.")] = None,
-    method: Annotated[str | None, typer.Option(help=f"Fusion method: {', '.join(METHODS)}.")] = None,
-    gnss_lever_arm: Annotated[str | None, typer.Option(
-        help="IMU -> GNSS antenna lever arm X,Y,Z in metres, body frame (x fwd, y right, z down).")] = None,
+    config: ConfigFile = None,
+    method: ProcessMethod = None,
+    gnss_lever_arm: GnssLeverArm = None,
     camera_lever_arm: Annotated[str | None, typer.Option(
         help="IMU -> camera perspective centre lever arm X,Y,Z in metres, body frame.")] = None,
     boresight: Annotated[str | None, typer.Option(
         help="Camera boresight R,P,Y in degrees (C_c_b = Rz(Y) Ry(P) Rx(R)).")] = None,
-    gnss_sigma: Annotated[str | None, typer.Option(
-        help="GNSS fix standard deviation N,E,U in metres (default 1,1,2).")] = None,
+    gnss_sigma: GnssSigma = None,
     gnss_rate: Annotated[float | None, typer.Option(help="GNSS fix rate in Hz (default 1).")] = None,
     camera_utc_offset: Annotated[float | None, typer.Option(
         help="UTC offset of the camera's local clock in hours (raw camera log only), e.g. 2 for UTC+2.")] = None,
     camera_time_offset: Annotated[float | None, typer.Option(
         help="Camera trigger latency in seconds, added to every exposure time (the exposure happened this long "
              "after its logged time); default 0.")] = None,
-    gnss_latency: Annotated[float | None, typer.Option(help=GNSS_LATENCY_HELP)] = None,
-    vehicle: Annotated[str | None, typer.Option(help=VEHICLE_HELP)] = None,
+    gnss_latency: GnssLatency = None,
+    vehicle: Vehicle = None,
     crs: Annotated[str | None, typer.Option(
         help="Projected CRS for easting/northing columns, e.g. EPSG:3765 (HTRS96/TM), or a compound CRS with its "
              "height system, e.g. EPSG:3765+5773 (with --height orthometric).")] = None,
@@ -163,9 +214,9 @@ def process(
         help="Roll and pitch from the POS unit ('unit', default) or recomputed from the raw IMU ('imu').")] = None,
     report: Annotated[Path | None, typer.Option(
         help="Also write an HTML quality report here (PNG plots beside it).")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors and failed quality "
-                                                               "checks.")] = False,
-    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Also list every input notice.")] = False,
+    quiet: Quiet = False,
+    verbose: Verbose = False,
+    summary_json: SummaryJson = None,
 ) -> None:
     """Turn POS.txt + exposure times into the exterior orientation of every frame.
 
@@ -177,14 +228,18 @@ def process(
     from georef.pipeline import process as run
     from georef.qc import assess_result
 
+    from .summary import run_document
+
+    _one_stdout(**{"-o": output, "--summary-json": summary_json})
+    _not_stdout(report, "--report", "the report is a set of files")
     cfg = load_config(config) if config else ProcessingConfig()
     cfg = cfg.updated(
-        method=method, lever_arm_gnss=_triple(gnss_lever_arm, "--gnss-lever-arm", "metres"),
+        method=plain(method), lever_arm_gnss=_triple(gnss_lever_arm, "--gnss-lever-arm", "metres"),
         lever_arm_camera=_triple(camera_lever_arm, "--camera-lever-arm", "metres"),
         boresight=_triple(boresight, "--boresight", "degrees"),
         gnss_sigma=_triple(gnss_sigma, "--gnss-sigma", "metres"), gnss_rate_hz=gnss_rate,
         camera_utc_offset=camera_utc_offset, crs=crs, attitude_source=attitude_source,
-        camera_time_offset=camera_time_offset, gnss_latency=gnss_latency, vehicle=vehicle,
+        camera_time_offset=camera_time_offset, gnss_latency=gnss_latency, vehicle=plain(vehicle),
         height=height, image_names=image_names,
     )
     # every output, its format, the CRS, the geoid grid and the image names are checked before processing
@@ -199,6 +254,8 @@ def process(
         except ExportError:
             output_format = "csv"
     specs = [ExportSpec(format_of(output, output_format), output), *(parse_export(text) for text in export or [])]
+    _one_stdout(**{"-o": output, "--summary-json": summary_json,
+                   **{f"--export {text}": spec.path for text, spec in zip(export or [], specs[1:], strict=True)}})
     frames = OutputFrames(cfg.crs, cfg.height, cfg.vertical_crs) if cfg.crs or cfg.height != "ellipsoidal" else None
     check_exports(specs, frames)
     if cfg.image_names:
@@ -208,22 +265,33 @@ def process(
         result = run(pos, camera, cfg, progress=step)
         step("writing table" if len(specs) == 1 else f"writing {len(specs)} outputs")
         for spec in specs:
-            write_export(result.table, spec.path, spec.fmt, frames=result.frames, odm_angles=cfg.odm_angles)
+            write_target(spec.path, lambda path, spec=spec: write_export(
+                result.table, path, spec.fmt, frames=result.frames, odm_angles=cfg.odm_angles))
         verdict = assess_result(result)
         if report is not None:
             from georef.report import write_report
 
             step("writing report")
             write_report(result, report, verdict=verdict)
+    code = 0 if verdict.passed else EXIT_QC_FAILED
+    if summary_json is not None:
+        outputs = [{"what": "table" if index == 0 else "export", "format": spec.fmt, "path": str(spec.path)}
+                   for index, spec in enumerate(specs)]
+        if report is not None:
+            outputs.append({"what": "report", "format": "html", "path": str(report)})
+        write_json(summary_json, run_document(
+            "process", code, inputs={"pos": pos, "camera": camera, "config": config}, settings=cfg,
+            outputs=outputs, summary=result.summary(), verdict=verdict))
     if not quiet:
-        _print_summary(result, output, verbose)
+        messages = _messages(output, summary_json, *(spec.path for spec in specs[1:]))
+        _print_summary(result, output, verbose, messages)
         for spec in specs[1:]:
-            out.print(f"also wrote {escape(spec.fmt)} -> {escape(str(spec.path))}", highlight=False)
+            messages.print(f"also wrote {escape(spec.fmt)} -> {escape(str(spec.path))}", highlight=False)
         for warning in result.summary()["geodesy_warnings"]:
             console.print(f"[yellow]warning:[/] {escape(str(warning))}", highlight=False)
     _print_verdict(verdict, quiet)
-    if not verdict.passed:
-        raise typer.Exit(code=EXIT_QC_FAILED)
+    if code:
+        raise typer.Exit(code=code)
 
 
 def _filter_rows(s: dict[str, Any]) -> list[tuple[str, str]]:
@@ -247,9 +315,9 @@ def _filter_rows(s: dict[str, Any]) -> list[tuple[str, str]]:
     return rows
 
 
-def _print_summary(result: Any, output: Path, verbose: bool) -> None:
+def _print_summary(result: Any, output: Path, verbose: bool, to: Console) -> None:
     s = result.summary()
-    table = Table(title=f"georef process ({s['method']}) -> {escape(str(output))}", show_header=False,
+    table = Table(title=f"georef process ({escape(str(s['method']))}) -> {_target(output)}", show_header=False,
                   title_justify="left")
     table.add_column("what", style="bold")
     table.add_column("value")
@@ -277,8 +345,8 @@ def _print_summary(result: Any, output: Path, verbose: bool) -> None:
     if s["yaw_offset_deg"] is not None:
         table.add_row("yaw offset", f"{s['yaw_offset_deg']:.3f} ± {s['yaw_offset_sigma_deg']:.3f} deg, drift "
                       f"{s['yaw_drift_deg_per_min']:.3f} ± {s['yaw_drift_sigma_deg_per_min']:.3f} deg/min")
-    for what, value in _filter_rows(s):
-        table.add_row(what, value)
+    for what, text in _filter_rows(s):
+        table.add_row(what, text)
     table.add_row("time quirks repaired", str(s["time_quirks_repaired"]))
     if s.get("output_crs") or s.get("output_heights") != "WGS 84 ellipsoidal":
         table.add_row("coordinates", escape(f"{s.get('output_crs') or 'WGS 84'}, heights {s['output_heights']}"))
@@ -289,7 +357,7 @@ def _print_summary(result: Any, output: Path, verbose: bool) -> None:
         horizontal = np.hypot(valid["sigma_n"], valid["sigma_e"])
         table.add_row("median sigma", f"horizontal {np.median(horizontal):.2f} m, vertical "
                       f"{np.median(valid['sigma_u']):.2f} m, yaw {np.median(valid['sigma_yaw']):.2f} deg")
-    out.print(table)
+    to.print(table)
     notices = result.notices
     if notices:
         shown = notices if verbose else notices[:5]
@@ -351,7 +419,7 @@ def simulate(
     autopilot: Annotated[bool, typer.Option(
         help="Add the autopilot's roll, pitch, yaw [deg; yaw from true north with a ~3 deg error] to imu.csv; "
              "implies --generic.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors.")] = False,
+    quiet: Quiet = False,
 ) -> None:
     """Simulate a flight or drive with its truth: helicopter survey (default), multicopter or car."""
     import dataclasses
@@ -411,7 +479,7 @@ def simulate(
         if generic:
             paths.update(write_generic(flight, folder))
     if not quiet:
-        out.print(f"wrote {escape(', '.join(str(p) for p in paths.values()))}", highlight=False)
+        out.print(f"wrote {escape(', '.join(str(p) for p in paths.values()))}", highlight=False, soft_wrap=True)
         out.print(f"{vehicle}: {len(flight.pos)} POS rows at {rate:g} Hz, {len(flight.exposures)} exposures, "
                   f"{len(flight.gnss_fixes)} GNSS fixes at {gnss_rate:g} Hz")
 
@@ -422,22 +490,20 @@ def fuse(
     imu: Annotated[Path, typer.Option(help="imu.csv: time [s], gyro_x..z [rad/s], acc_x..z [m/s^2], body FRD.")],
     gnss: Annotated[Path, typer.Option(help="gnss.csv: time [s], lat, lon [deg], height [m] of the antenna, "
                                             "optional sigma_n, sigma_e, sigma_u [m].")],
-    output: Annotated[Path, typer.Option("-o", "--output", help="Trajectory to write (traj.csv).")] = Path("traj.csv"),
-    config: Annotated[Path | None, typer.Option("--config", help="flight.toml with any of these settings.")] = None,
-    method: Annotated[str, typer.Option(help="rts (EKF + smoother) or ekf (forward filter only).")] = "rts",
-    gnss_lever_arm: Annotated[str | None, typer.Option(
-        help="IMU -> GNSS antenna lever arm X,Y,Z in metres, body frame (x fwd, y right, z down).")] = None,
-    gnss_sigma: Annotated[str | None, typer.Option(
-        help="GNSS sigma N,E,U in metres for fixes without their own sigmas (default 1,1,2).")] = None,
+    output: Annotated[Path, output_option("Trajectory to write (traj.csv).")] = Path("traj.csv"),
+    config: ConfigFile = None,
+    method: FuseMethod = "rts",
+    gnss_lever_arm: GnssLeverArm = None,
+    gnss_sigma: GnssSigma = None,
     imu_preset: Annotated[str | None, typer.Option(
         help="IMU error preset: mems-ivru, mems-consumer, tactical-fog (datasheet values in docs).")] = None,
-    gnss_latency: Annotated[float | None, typer.Option(help=GNSS_LATENCY_HELP)] = None,
-    vehicle: Annotated[str | None, typer.Option(help=VEHICLE_HELP)] = None,
+    gnss_latency: GnssLatency = None,
+    vehicle: Vehicle = None,
     magnetic_declination: Annotated[float | None, typer.Option(
         help="Magnetic declination [deg, east of true north] for a heading from imu.csv's mag_x..z, used only when "
              "the motion never shows the heading (default 0).")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors and failed quality "
-                                                               "checks.")] = False,
+    quiet: Quiet = False,
+    summary_json: SummaryJson = None,
 ) -> None:
     """Fuse generic IMU and GNSS files into a trajectory (position, velocity, attitude with sigmas).
 
@@ -448,12 +514,14 @@ def fuse(
     from georef.pipeline import solution_figures
     from georef.qc import assess
 
-    if method not in ("rts", "ekf"):
-        raise typer.BadParameter(f"--method must be rts or ekf for georef fuse, got {method!r}")
+    from .summary import run_document
+
+    method = plain(method)
+    _one_stdout(**{"-o": output, "--summary-json": summary_json})
     cfg = load_config(config) if config else ProcessingConfig()
     cfg = cfg.updated(lever_arm_gnss=_triple(gnss_lever_arm, "--gnss-lever-arm", "metres"),
                       gnss_sigma=_triple(gnss_sigma, "--gnss-sigma", "metres"), imu_preset=imu_preset,
-                      gnss_latency=gnss_latency, vehicle=vehicle, magnetic_declination=magnetic_declination)
+                      gnss_latency=gnss_latency, vehicle=plain(vehicle), magnetic_declination=magnetic_declination)
     progress, step = _stage_progress(quiet, total=3)
     with progress if progress is not None else contextlib.nullcontext():
         step("reading inputs")
@@ -464,19 +532,28 @@ def fuse(
         nav = solve_ins(InsInputs(time=time_s, gyro=gyro, accel=accel, gnss=fixes, source=str(imu), mag=mag,
                                   autopilot_yaw=autopilot_yaw), cfg, smooth=method == "rts")
         step("writing trajectory")
-        write_trajectory_csv(nav, output)
+        write_target(output, lambda path: write_trajectory_csv(nav, path))
     verdict = assess(nav, cfg=cfg)
+    code = 0 if verdict.passed else EXIT_QC_FAILED
+    used = int((nav.gnss.status >= 1).sum())
+    rejected = nav.gnss.rejected_lines
+    figures = solution_figures(nav, cfg)
+    if summary_json is not None:
+        summary = {"method": method, "trajectory_rows": int(nav.valid.sum()), "gnss_fixes": len(fixes),
+                   "gnss_used": used, "gnss_rejected_lines": rejected, **figures}
+        write_json(summary_json, run_document(
+            "fuse", code, inputs={"imu": imu, "gnss": gnss, "config": config}, settings=cfg,
+            outputs=[{"what": "trajectory", "format": "csv", "path": str(output)}], summary=summary, verdict=verdict))
     if not quiet:
-        used = int((nav.gnss.status >= 1).sum())
-        rejected = nav.gnss.rejected_lines
+        to = _messages(output, summary_json)
         named = f" (lines {', '.join(map(str, rejected[:10]))})" if rejected else ""
-        out.print(f"{int(nav.valid.sum())} trajectory rows -> {escape(str(output))}; GNSS {len(fixes)} fixes, "
-                  f"{used} used, {len(rejected)} rejected{named}", highlight=False, soft_wrap=True)
-        for what, value in _filter_rows(solution_figures(nav, cfg)):
-            out.print(f"{what}: {value}", highlight=False, soft_wrap=True)
+        to.print(f"{int(nav.valid.sum())} trajectory rows -> {_target(output)}; GNSS {len(fixes)} fixes, "
+                 f"{used} used, {len(rejected)} rejected{named}", highlight=False, soft_wrap=True)
+        for what, text in _filter_rows(figures):
+            to.print(f"{what}: {text}", highlight=False, soft_wrap=True)
     _print_verdict(verdict, quiet)
-    if not verdict.passed:
-        raise typer.Exit(code=EXIT_QC_FAILED)
+    if code:
+        raise typer.Exit(code=code)
 
 
 @app.command()
@@ -484,9 +561,8 @@ def fuse(
 def attitude(
     imu: Annotated[Path, typer.Option(help="imu.csv: time [s], gyro_x..z [rad/s], acc_x..z [m/s^2], optional "
                                            "mag_x..z (any unit); body axes forward-right-down.")],
-    method: Annotated[str, typer.Option(help="complementary, kf (angle + gyro-bias Kalman), mekf or ukf.")] = "mekf",
-    output: Annotated[Path, typer.Option("-o", "--output", help="Attitude table to write (CSV, degrees).")] = Path(
-        "attitude.csv"),
+    method: AttitudeMethod = "mekf",
+    output: Annotated[Path, output_option("Attitude table to write (CSV, degrees).")] = Path("attitude.csv"),
     inclination: Annotated[float, typer.Option(help="Magnetic inclination in degrees (field reference "
                                                     "[cos I, 0, sin I] in NED).")] = 60.0,
     gain: Annotated[float, typer.Option(help="Complementary filter: accelerometer weight per sample (0-1).")] = 0.02,
@@ -496,21 +572,26 @@ def attitude(
     alpha: Annotated[float, typer.Option(help="UKF sigma-point spread alpha.")] = 0.01,
     beta: Annotated[float, typer.Option(help="UKF prior-knowledge beta (2 for Gaussian).")] = 2.0,
     kappa: Annotated[float, typer.Option(help="UKF secondary scaling kappa.")] = 0.0,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors.")] = False,
+    quiet: Quiet = False,
 ) -> None:
     """Roll, pitch (and yaw with mekf/ukf) from raw gyro, accelerometer and optional magnetometer data."""
     from georef.attitude.run import estimate_attitude
     from georef.io.atomic import atomic_write
     from georef.io.generic import read_marg_csv
 
+    method = plain(method)
     time_s, gyro, accel, mag, _ = read_marg_csv(imu)
     table = estimate_attitude(method, time_s, gyro, accel, mag, inclination_deg=inclination, gain=gain,
                               gyro_noise=gyro_noise, accel_sigma=accel_sigma, alpha=alpha, beta=beta, kappa=kappa)
-    with atomic_write(output) as handle:
-        table.to_csv(handle, index=False, float_format="%.8g", lineterminator="\n")
+    def write(path: Path) -> None:
+        with atomic_write(path) as handle:
+            table.to_csv(handle, index=False, float_format="%.8g", lineterminator="\n")
+
+    write_target(output, write)
     if not quiet:
-        out.print(f"{len(table)} samples -> {escape(str(output))} ({escape(method)}"
-                  f"{', magnetometer' if mag is not None else ''})", highlight=False)
+        _messages(output).print(f"{len(table)} samples -> {_target(output)} ({escape(method)}"
+                                f"{', magnetometer' if mag is not None else ''})", highlight=False,
+                                soft_wrap=True)
 
 
 @app.command()
@@ -518,24 +599,32 @@ def attitude(
 def batch(
     source: Annotated[Path, typer.Argument(help="A folder of flight folders (POS.txt, Kamera.txt, flight.toml each) "
                                                 "or a manifest CSV with columns flight, pos, camera[, config].")],
-    output: Annotated[Path, typer.Option("-o", "--output", help="Output folder: <flight>/eo.csv, <flight>/georef.log, "
-                                                                 "batch_summary.csv.")] = Path("batch_out"),
-    method: Annotated[str | None, typer.Option(help="Override every flight's method (rts, ekf, axis).")] = None,
+    output: Annotated[Path, output_option("Output folder: <flight>/eo.csv, <flight>/georef.log, batch_summary.csv.",
+                                          stdout=False)] = Path("batch_out"),
+    method: BatchMethod = None,
     scheduler: Annotated[str | None, typer.Option(help="Dask scheduler address, e.g. tcp://host:8786; default: a "
                                                        "LocalCluster on this machine.")] = None,
     workers: Annotated[int, typer.Option(help="LocalCluster worker processes (one thread each).")] = 2,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors and failed quality "
-                                                               "checks.")] = False,
+    quiet: Quiet = False,
+    summary_json: SummaryJson = None,
 ) -> None:
     """Process many flights, one Dask task each; a failed flight is reported and the others go on.
 
-    Exit code 2 when every flight failed to run, 4 when a flight's quality checks failed (docs/qc.md).
+    Exit code 0 when every flight ran and passed its quality checks; else 3 when any flight failed with an internal
+    error (a bug in georef, a worker that died), else 2 when any flight failed to run on its input, else 4 when
+    any flight's quality checks failed (docs/qc.md). The other flights' outputs are written in every case.
     """
-    from georef.batch import discover, run_batch
+    from georef.batch import SUMMARY_COLUMNS, discover, run_batch
 
+    from .summary import batch_document, batch_exit_code
+
+    _not_stdout(output, "-o", "batch writes a folder of files")
     jobs = discover(source)
+    rows: list[dict] = []
+    settings = {"method": plain(method), "scheduler": scheduler, "workers": workers}
     if quiet:
-        summary = run_batch(jobs, output, method=method, scheduler=scheduler, workers=workers)
+        summary = run_batch(jobs, output, method=plain(method), scheduler=scheduler, workers=workers,
+                            on_done=rows.append)
     else:
         progress = Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
                             TextColumn("{task.completed}/{task.total} flights"), TimeElapsedColumn(),
@@ -544,10 +633,19 @@ def batch(
             task = progress.add_task("processing flights", total=len(jobs))
 
             def done(row: dict) -> None:
+                rows.append(row)
                 progress.advance(task)
-                progress.update(task, description=f"{escape(str(row['flight']))}: {row['status']}")
+                progress.update(task, description=f"{escape(str(row['flight']))}: {escape(str(row['status']))}")
 
-            summary = run_batch(jobs, output, method=method, scheduler=scheduler, workers=workers, on_done=done)
+            summary = run_batch(jobs, output, method=plain(method), scheduler=scheduler, workers=workers,
+                                on_done=done)
+    order = {job.flight: i for i, job in enumerate(jobs)}
+    rows.sort(key=lambda row: order.get(row["flight"], len(order)))
+    code = batch_exit_code(rows, EXIT_USER_ERROR, EXIT_INTERNAL_ERROR, EXIT_QC_FAILED)
+    if summary_json is not None:
+        write_json(summary_json, batch_document(
+            code, source=source, settings=settings, rows=rows, columns=SUMMARY_COLUMNS,
+            outputs=[{"what": "summary", "format": "csv", "path": str(output / "batch_summary.csv")}]))
     if not quiet:
         shown = ("flight", "status", "method", "frames", "rejected_fixes", "qc", "runtime_s", "message")
         table = Table(title=f"georef batch -> {escape(str(output))}/batch_summary.csv", title_justify="left")
@@ -555,18 +653,22 @@ def batch(
             table.add_column(column)
         for row in summary.itertuples(index=False):
             table.add_row(*(escape(_cell(getattr(row, c))) for c in shown))
-        out.print(table)
+        _messages(summary_json).print(table)
     failed = summary[summary["status"] != "ok"]
     for row in failed.itertuples(index=False):
-        console.print(f"[bold red]failed:[/] {escape(str(row.flight))}: {escape(str(row.message))}", highlight=False)
+        if row.failure == "internal":
+            console.print(f"[bold red]internal error:[/] {escape(str(row.flight))}: {escape(str(row.message))}. "
+                          "This is a bug in georef; please report it with the flight's georef.log (it has the "
+                          "traceback).", highlight=False)
+        else:
+            console.print(f"[bold red]failed:[/] {escape(str(row.flight))}: {escape(str(row.message))}",
+                          highlight=False)
     qc_failed = summary[summary["qc"].fillna("").astype(str).str.startswith("failed")]
     for row in qc_failed.itertuples(index=False):
         console.print(f"[bold red]QC failed:[/] {escape(str(row.flight))}: {escape(str(row.qc_details))}",
                       highlight=False)
-    if len(failed) == len(summary):
-        raise typer.Exit(code=EXIT_USER_ERROR)
-    if len(qc_failed):
-        raise typer.Exit(code=EXIT_QC_FAILED)
+    if code:
+        raise typer.Exit(code=code)
 
 
 def _cell(value: Any) -> str:
@@ -612,7 +714,7 @@ def info(
 @app.command("build-kernels")
 @_user_errors
 def build_kernels(
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors.")] = False,
+    quiet: Quiet = False,
 ) -> None:
     """Compile the filters' inner loops ahead of time (about 10 s each, once per install).
 
@@ -634,17 +736,21 @@ def build_kernels(
 @app.command()
 @_user_errors
 def evaluate(
-    eo: Annotated[Path, typer.Argument(help="EO table written by georef process.")],
-    truth: Annotated[Path, typer.Argument(help="Reference EO table (e.g. truth.csv of georef simulate).")],
+    eo: Annotated[Path, typer.Argument(help="EO table written by georef process ('-': read it from standard "
+                                            "input, e.g. piped from georef process -o -).")],
+    truth: Annotated[Path, typer.Argument(help="Reference EO table (e.g. truth.csv of georef simulate): frame, "
+                                               "time, lat, lon, height, roll, pitch, yaw; same frames, same order.")],
 ) -> None:
-    """Accuracy of an EO table against a reference: RMS and the share of errors inside 2 sigma."""
-    import pandas as pd
+    """Accuracy of an EO table against a reference: RMS and the share of errors inside 2 sigma.
 
+    Both tables are checked first: a missing or non-numeric column, a different number of frames or different
+    times are reported with the file, line and column (and arguments given the wrong way round are named so).
+    """
     from georef.evaluate import accuracy, frame_errors, sigma_coverage
-    from georef.io.eo_table import read_eo_csv
 
-    estimate = read_eo_csv(eo)
-    reference = pd.read_csv(truth)
+    from .evaluate_inputs import read_inputs
+
+    estimate, reference = read_inputs(eo, truth)
     errors = frame_errors(estimate, reference)
     table = Table(title=escape(f"{eo} against {truth}"), title_justify="left")
     table.add_column("figure")

@@ -1,0 +1,97 @@
+"""Option definitions shared by the ``georef`` commands: one definition each, reused by every command that takes it.
+
+Each is a ``typing.Annotated`` type for a command's parameter; the default value stays in the command's signature,
+e.g. ``quiet: Quiet = False``. Options whose values come from a fixed list are choices (a string ``Enum``, matched
+case-insensitively), so a wrong value is refused before anything runs, with the list in the message and in
+``--help``; :func:`plain` turns the member back into the plain string the library takes.
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+from importlib import metadata
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from georef.config import METHODS
+
+#: ``-`` as a file name: standard output (``-o -``, ``--summary-json -``)
+STDOUT = "-"
+
+#: the methods of ``georef fuse`` (full-state filters on generic inputs)
+FUSE_METHODS = ("rts", "ekf")
+#: the filters of ``georef attitude``
+ATTITUDE_METHODS = ("complementary", "kf", "mekf", "ukf")
+#: the ``--vehicle`` values (non-holonomic constraints)
+VEHICLES = ("auto", "ground", "air")
+
+
+def georef_version() -> str:
+    """The installed georef's version (``pyproject.toml``), or ``"unknown"`` when it runs from an uninstalled tree."""
+    try:
+        return metadata.version("georef")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def choice(name: str, values: tuple[str, ...]) -> type[Enum]:
+    """A string ``Enum`` called ``name`` whose members are ``values`` (member name = value)."""
+    return Enum(name, {v: v for v in values}, type=str)  # type: ignore[return-value]
+
+
+def plain(member: Enum | str | None) -> str | None:
+    """The plain string of a choice (``None`` stays ``None``)."""
+    return member.value if isinstance(member, Enum) else member
+
+
+def output_option(what: str, *, stdout: bool = True) -> Any:
+    """``-o/--output``: the file to write ``what`` to; with ``stdout``, ``-`` writes it to standard output (and
+    everything else the command prints goes to standard error)."""
+    hint = " '-' writes it to standard output (all messages go to standard error)." if stdout else ""
+    return typer.Option("-o", "--output", help=f"{what}{hint}")
+
+
+def method_option(what: str) -> Any:
+    """``--method``: a choice (its values are listed by ``--help`` and in the message about a wrong one)."""
+    return typer.Option(case_sensitive=False, help=what)
+
+
+Method = choice("Method", METHODS)
+FuseMethodChoice = choice("FuseMethod", FUSE_METHODS)
+AttitudeMethodChoice = choice("AttitudeMethod", ATTITUDE_METHODS)
+VehicleChoice = choice("Vehicle", VEHICLES)
+
+
+Quiet = Annotated[bool, typer.Option(
+    "--quiet", "-q", help="Print nothing but errors (and failed quality checks, for the commands that run them).")]
+Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Also list every input notice.")]
+ConfigFile = Annotated[Path | None, typer.Option(
+    "--config", help="flight.toml with any of these settings; command-line options win.")]
+SummaryJson = Annotated[Path | None, typer.Option(
+    "--summary-json", help="Also write a machine-readable summary (JSON: the figures, the QC verdict with its "
+                           "checks, the outputs written, the georef version; docs/qc.md) to this file; '-' "
+                           "writes it to standard output.")]
+
+_METHODS_HELP = ("rts (full-state EKF + RTS smoother; default), ekf (the forward filter alone), axis (the thesis's "
+                 "per-axis method) or graph (GTSAM factor-graph smoother)")
+ProcessMethod = Annotated[Method | None, method_option(f"Fusion method: {_METHODS_HELP}.")]  # type: ignore[valid-type]
+FuseMethod = Annotated[FuseMethodChoice, method_option(  # type: ignore[valid-type]
+    "rts (EKF + smoother) or ekf (forward filter only).")]
+BatchMethod = Annotated[Method | None, method_option(  # type: ignore[valid-type]
+    f"Override every flight's method (default: each flight's flight.toml): {_METHODS_HELP}.")]
+AttitudeMethod = Annotated[AttitudeMethodChoice, method_option(  # type: ignore[valid-type]
+    "complementary, kf (angle + gyro-bias Kalman), mekf or ukf.")]
+
+GnssLeverArm = Annotated[str | None, typer.Option(
+    help="IMU -> GNSS antenna lever arm X,Y,Z in metres, body frame (x fwd, y right, z down).")]
+GnssSigma = Annotated[str | None, typer.Option(
+    help="GNSS fix standard deviation N,E,U in metres, for fixes without their own sigmas (default 1,1,2).")]
+GnssLatency = Annotated[float | None, typer.Option(
+    help="GNSS time-tag latency in seconds (the fix was measured this long before its time tag); default: "
+         "estimated and reported, not applied.")]
+Vehicle = Annotated[VehicleChoice | None, typer.Option(  # type: ignore[valid-type]
+    case_sensitive=False,
+    help="auto (non-holonomic constraints when the motion shows a ground vehicle; default), ground (always) "
+         "or air (never).")]
