@@ -151,7 +151,7 @@ def process(
     attitude_source: Annotated[str | None, typer.Option(
         help="Roll and pitch from the POS unit ('unit', default) or recomputed from the raw IMU ('imu').")] = None,
     report: Annotated[Path | None, typer.Option(
-        help="Also write an HTML quality report here (PNG plots beside it).")] = None,
+        help="Also write the quality report here: one self-contained HTML file (docs/report.md).")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing but errors and failed quality "
                                                                "checks.")] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Also list every input notice.")] = False,
@@ -176,16 +176,25 @@ def process(
     if output_format in NEEDS_CRS and not cfg.crs:
         raise typer.BadParameter(f"--format {output_format} writes projected coordinates: give --crs EPSG:xxxx")
     progress, step = _stage_progress(quiet, total=5 if report is not None else 4)
+    from georef.io.atomic import atomic_group, resolve_target
+
+    for target in (output, report):  # a device, a directory or a write-protected file: refused before processing
+        if target is not None:
+            resolve_target(target)
     with progress if progress is not None else contextlib.nullcontext():
         result = run(pos, camera, cfg, progress=step)
-        step("writing table")
-        write_export(result.table, output, output_format, cfg.crs)
-        verdict = assess_result(result)
-        if report is not None:
-            from georef.report import write_report
+        with atomic_group():  # the table and the report together, or neither (a full disk, a refused target)
+            step("writing table")
+            write_export(result.table, output, output_format, cfg.crs)
+            verdict = assess_result(result)
+            if report is not None:
+                import shlex
 
-            step("writing report")
-            write_report(result, report, verdict=verdict)
+                from georef.report import write_report
+
+                step("writing report")
+                command = shlex.join(["georef", *sys.argv[1:]]) if Path(sys.argv[0]).name == "georef" else None
+                write_report(result, report, verdict=verdict, inputs={"configuration": config}, command=command)
     if not quiet:
         _print_summary(result, output, verbose)
     _print_verdict(verdict, quiet)
