@@ -188,7 +188,7 @@ def _track(result) -> str:
     nav, table, gnss = result.nav, result.table, result.log.gnss
     valid = nav.valid
     s = _stride(int(valid.sum()))
-    fig, ax = plt.subplots(figsize=(8, 6))
+    fig, ax = plt.subplots(figsize=(10, 8))
     ax.plot(np.degrees(nav.lon[valid][::s]), np.degrees(nav.lat[valid][::s]), color="0.4", lw=1,
             label="trajectory (IMU)")
     ax.scatter(gnss.lon_deg, gnss.lat_deg, s=6, color="tab:blue", label="GNSS fixes")

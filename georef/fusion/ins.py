@@ -666,18 +666,18 @@ def forward_separation(t: np.ndarray, run: _Pass) -> ForwardSeparation | None:
     attitude[:, 2] = wrap_pi(attitude[:, 2])
     pos = slice(layout.POS, layout.POS + 3)
     att = slice(layout.ATT, layout.ATT + 3)
-    J = euler_error_jacobian(angles_s[:, 0], angles_s[:, 1], angles_s[:, 2])
-    JT = np.swapaxes(J, -1, -2)
 
-    def euler_sigma(P: np.ndarray) -> np.ndarray:
-        return np.sqrt(np.maximum(np.diagonal(J @ P @ JT, axis1=1, axis2=2), 0.0))
+    def euler_sigma(P: np.ndarray, angles: np.ndarray) -> np.ndarray:
+        """1-sigma of roll, pitch, yaw [rad] of a NED attitude-error covariance, linearised at ``angles``."""
+        J = euler_error_jacobian(angles[:, 0], angles[:, 1], angles[:, 2])
+        return np.sqrt(np.maximum(np.diagonal(J @ P @ np.swapaxes(J, -1, -2), axis1=1, axis2=2), 0.0))
 
     return ForwardSeparation(
         time=t[rows], position=position, attitude=attitude,
         position_sigma=np.sqrt(np.maximum(np.diagonal(P_f[:, pos, pos] - P_s[:, pos, pos], axis1=1, axis2=2), 0.0)),
-        attitude_sigma=euler_sigma(P_f[:, att, att] - P_s[:, att, att]),
+        attitude_sigma=euler_sigma(P_f[:, att, att] - P_s[:, att, att], angles_s),
         forward_position_sigma=np.sqrt(np.maximum(np.diagonal(P_f[:, pos, pos], axis1=1, axis2=2), 0.0)),
-        forward_attitude_sigma=euler_sigma(P_f[:, att, att]))
+        forward_attitude_sigma=euler_sigma(P_f[:, att, att], angles_f))
 
 
 def _calibration(run: _Pass) -> Calibration:
