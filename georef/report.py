@@ -31,7 +31,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from matplotlib.ticker import FuncFormatter, MultipleLocator  # noqa: E402
+from matplotlib.ticker import FuncFormatter, MaxNLocator, MultipleLocator  # noqa: E402
 
 from georef.frames import C_e_n, wrap_360, wrap_pi  # noqa: E402
 from georef.io.atomic import atomic_write  # noqa: E402
@@ -206,6 +206,7 @@ def _track(result) -> str:
     ax.set_ylabel("latitude [deg]")
     ax.set_aspect(1.0 / np.cos(np.radians(np.nanmean(gnss.lat_deg))))
     ax.ticklabel_format(useOffset=False)
+    ax.xaxis.set_major_locator(MaxNLocator(5))
     ax.legend(loc="best", fontsize=8)
     ax.grid(True, lw=0.4, alpha=0.5)
     return _png(fig)
