@@ -133,14 +133,15 @@ def test_write_protected_files_are_refused_and_writable_ones_keep_their_mode(tmp
     with atomic_write(shared) as handle:
         handle.write("new\n")
     assert shared.read_text() == "new\n" and stat.S_IMODE(shared.stat().st_mode) == 0o640
-    fresh = tmp_path / "fresh.csv"
-    umask = os.umask(0o022)
-    try:
-        with atomic_write(fresh) as handle:
-            handle.write("x\n")
-    finally:
-        os.umask(umask)
-    assert stat.S_IMODE(fresh.stat().st_mode) == 0o644
+    for mask, expected in ((0o022, 0o644), (0o077, 0o600)):
+        fresh = tmp_path / f"fresh{mask:o}.csv"
+        umask = os.umask(mask)
+        try:
+            with atomic_write(fresh) as handle:
+                handle.write("x\n")
+        finally:
+            os.umask(umask)
+        assert stat.S_IMODE(fresh.stat().st_mode) == expected
 
 
 def test_a_symbolic_link_is_followed_and_kept(tmp_path):

@@ -278,13 +278,24 @@ def atomic_group() -> Iterator[None]:
             raise
 
 
+def _umask() -> int:
+    """The process's umask, read without changing it where the system tells it (Linux); else set and restored."""
+    with contextlib.suppress(OSError, ValueError):
+        with open("/proc/self/status", encoding="ascii") as status:
+            for line in status:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    umask = os.umask(0o077)  # briefly: another thread creating a file meanwhile gets the stricter mask
+    os.umask(umask)
+    return umask
+
+
 def _mode_for(target: Path) -> int:
+    """The permission bits the output gets: an existing target's own, else ``0666 & ~umask``."""
     try:
         return stat.S_IMODE(os.stat(target).st_mode) & 0o777
     except FileNotFoundError:
-        umask = os.umask(0)
-        os.umask(umask)
-        return 0o666 & ~umask
+        return 0o666 & ~_umask()
 
 
 @contextlib.contextmanager
