@@ -13,6 +13,7 @@ import os
 import re
 import resource
 import shutil
+import stat
 import subprocess
 import sys
 from html.parser import HTMLParser
@@ -314,3 +315,12 @@ def test_process_refuses_a_device_or_protected_output_before_processing(tmp_path
     os.mkfifo(fifo)
     result = CliRunner().invoke(app, ["process", str(DATA / "POS.txt"), str(DATA / "Kamera.txt"), "-o", str(fifo)])
     assert result.exit_code == 2 and "eo.csv: is a FIFO (named pipe), not a regular file" in result.output
+    # -o /dev/null as root: a node with /dev/null's numbers in our folder, so that a regression replaces only it
+    null = tmp_path / "null"
+    try:
+        os.mknod(null, stat.S_IFCHR | 0o666, os.makedev(1, 3))
+    except PermissionError:
+        return  # not root: the FIFO above took the same path (tests/test_io_misc.py says so when it skips)
+    result = CliRunner().invoke(app, ["process", str(DATA / "POS.txt"), str(DATA / "Kamera.txt"), "-o", str(null)])
+    assert result.exit_code == 2 and "null: is a character device, not a regular file" in result.output
+    assert stat.S_ISCHR(os.lstat(null).st_mode)
