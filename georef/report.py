@@ -1,14 +1,29 @@
-"""A quality-control report: one self-contained HTML page with PNG plots beside it.
+"""The quality-control report: one self-contained HTML file a client can file (``docs/report.md``).
 
-Sections: the quality checks and their verdict (:mod:`georef.qc`), ground track (stations, GNSS outages,
-rejected fixes), position and velocity per axis, attitude with ±σ bands, innovations against the χ² gate,
-estimated sensor biases, the recovered yaw offset, and a summary table of the figures.
-``georef process --report out.html`` writes it.
+Everything is in the one file: the plots are PNG images embedded as ``data:`` URIs, the styles inline; nothing is
+fetched. Sections, in order (:data:`SECTIONS`): the QC verdict and its reasons (:mod:`georef.qc`); a summary of
+the figures; provenance (georef and library versions, the date, the command, every input file with its size
+and SHA-256, the mounting: lever arms, boresight, GNSS sigma, the innovation gate); the flagged frames; the
+forward filter against the smoothed solution; the estimated accuracy over time; the ground track; GNSS status
+(``STATUS[HEX]``) and IMU data gaps; the GNSS innovations against the gate; position and velocity; the camera
+attitude; the estimated sensor biases; the recovered yaw origin of the POS unit; every processing setting.
+
+Times are UTC time of day (POS.txt times are UTC seconds of day), shown as ``hh:mm:ss``. Units: metres,
+degrees, seconds. ``georef process --report out.html`` writes it; the file is written atomically (complete or
+not at all, :mod:`georef.io.atomic`).
 """
 
 from __future__ import annotations
 
+import base64
+import dataclasses
+import datetime as dt
+import hashlib
 import html
+import io
+import math
+import platform
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import matplotlib
@@ -16,38 +31,166 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.ticker import FuncFormatter, MaxNLocator, MultipleLocator  # noqa: E402
 
 from georef.frames import C_e_n, wrap_360, wrap_pi  # noqa: E402
 from georef.io.atomic import atomic_write  # noqa: E402
 
 SECTIONS = [
-    ("qc", "Quality checks"),
-    ("track", "Ground track"),
-    ("position", "Position and velocity"),
-    ("attitude", "Attitude with ±σ"),
-    ("innovations", "GNSS innovations and the χ² gate"),
-    ("biases", "Estimated sensor biases"),
-    ("yaw-offset", "Recovered yaw offset of the POS unit"),
+    ("verdict", "Quality verdict"),
     ("summary", "Summary"),
+    ("provenance", "Provenance"),
+    ("flagged", "Flagged frames"),
+    ("separation", "Forward against smoothed solution"),
+    ("accuracy", "Estimated accuracy over time"),
+    ("track", "Ground track"),
+    ("gnss", "GNSS status and IMU data gaps"),
+    ("innovations", "GNSS innovations and the χ² gate"),
+    ("position", "Position and velocity"),
+    ("attitude", "Camera attitude at the exposures"),
+    ("biases", "Estimated sensor biases"),
+    ("yaw-offset", "Recovered yaw origin of the POS unit"),
+    ("settings", "Settings used"),
 ]
 
+#: plotted points per line at most (longer series are decimated for drawing only)
+MAX_PLOT_POINTS = 20_000
+#: PNG resolution [dots per inch] of the embedded plots
+DPI = 90
+DAY_S = 86_400.0
+_COMPONENTS = ("north", "east", "down")
+_ANGLES = ("roll", "pitch", "yaw")
+_COLOURS = ("tab:blue", "tab:orange", "tab:green")
+_STATUS_COLOURS = {"pass": "#1a7f37", "warn": "#9a6700", "fail": "#cf222e"}
 
-def _save(fig, folder: Path, name: str) -> str:
-    path = folder / name
-    fig.savefig(path, dpi=90, bbox_inches="tight")
+
+# ---- formatting ---------------------------------------------------------------------------------------------
+def utc(seconds: float, digits: int = 1) -> str:
+    """UTC seconds of day (continuous across midnight) as ``hh:mm:ss.s`` (``+1 d`` after midnight)."""
+    if not math.isfinite(seconds):
+        return "—"
+    total = round(float(seconds), digits)
+    day, rest = divmod(total, DAY_S)
+    hours, rest = divmod(rest, 3600.0)
+    minutes, secs = divmod(rest, 60.0)
+    width = 2 + (digits + 1 if digits else 0)
+    text = f"{int(hours):02d}:{int(minutes):02d}:{secs:0{width}.{digits}f}"
+    return text + (f" (+{int(day)} d)" if day else "")
+
+
+def utc_span(start: float, end: float, digits: int = 1) -> str:
+    """``hh:mm:ss – hh:mm:ss UTC (n s)``."""
+    return f"{utc(start, digits)} – {utc(end, digits)} UTC ({end - start:.{digits}f} s)"
+
+
+def _number(value: float, digits: int = 3) -> str:
+    return f"{value:.{digits}f}".replace("-", "−") if math.isfinite(value) else "—"
+
+
+def _triple(values: Sequence[float], labels: Sequence[str], unit: str, digits: int = 3) -> str:
+    return ", ".join(f"{label} {_number(float(v), digits)}" for label, v in zip(labels, values, strict=True)) + \
+        f" {unit}"
+
+
+def _size(n_bytes: int) -> str:
+    for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n_bytes >= scale:
+            return f"{n_bytes / scale:.1f} {unit} ({n_bytes:,} bytes)"
+    return f"{n_bytes} bytes"
+
+
+def readable(value: object) -> str:
+    """A value as a person reads it: no Python tuples, lists, dicts or ``None``."""
+    if value is None:
+        return "—"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{value:.6g}".replace("-", "−")
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, dict):
+        return "; ".join(f"{k} = {readable(v)}" for k, v in value.items()) or "none"
+    if isinstance(value, tuple | list | np.ndarray):
+        items = list(value)
+        if not items:
+            return "none"
+        shown = ", ".join(readable(v) for v in items[:12])
+        return shown + (f", … ({len(items)} in all)" if len(items) > 12 else "")
+    return str(value)
+
+
+def _table(rows: Iterable[Sequence[object]], header: Sequence[str] | None = None, cls: str = "") -> str:
+    """An HTML table; cells are escaped text (use :class:`_Raw` for markup)."""
+
+    def cell(value: object, tag: str) -> str:
+        text = value.html if isinstance(value, _Raw) else html.escape(readable(value))
+        return f"<{tag}>{text}</{tag}>"
+
+    head = "<thead><tr>" + "".join(cell(h, "th") for h in header) + "</tr></thead>" if header else ""
+    body = "".join("<tr>" + "".join(cell(v, "th" if k == 0 and not header else "td") for k, v in enumerate(row))
+                   + "</tr>" for row in rows)
+    return f'<table class="{cls}">{head}<tbody>{body}</tbody></table>'
+
+
+@dataclasses.dataclass
+class _Raw:
+    html: str
+
+
+# ---- plots --------------------------------------------------------------------------------------------------
+def _png(fig) -> str:
+    """The figure as a ``data:image/png;base64,...`` URI (the figure is closed)."""
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=DPI, bbox_inches="tight")
     plt.close(fig)
-    return name
+    return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
 
 
-def _relative_time(result, t: np.ndarray) -> np.ndarray:
-    return t - result.log.time[0]
+def _tick_step(span: float) -> float:
+    """A round tick interval [s] giving 4 to 8 ticks over ``span`` [s]."""
+    for step in (1, 2, 5, 10, 15, 30, 60, 120, 300, 600, 900, 1800, 3600, 7200, 10800, 21600):
+        if span / step <= 8:
+            return float(step)
+    return 43200.0
 
 
-def _track(result, folder: Path, stem: str) -> str:
+def _utc_axis(ax, t0: float, t1: float) -> None:
+    """Ticks at round UTC times, labelled ``hh:mm:ss``."""
+    ax.xaxis.set_major_locator(MultipleLocator(_tick_step(max(t1 - t0, 1.0))))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _pos: utc(x, 0)))
+    ax.set_xlim(t0, t1)
+
+
+def _finish(fig, axes, result) -> None:
+    """UTC ticks and a grid on every axes, the time label under the bottom row, a tight layout."""
+    t0, t1 = float(result.log.time[0]), float(result.log.time[-1])
+    grid = np.atleast_1d(axes)
+    for ax in grid.ravel():
+        _utc_axis(ax, t0, t1)
+        ax.grid(True, lw=0.4, alpha=0.5)
+    bottom = grid[-1] if grid.ndim == 2 else grid[-1:]
+    for ax in np.atleast_1d(bottom):
+        ax.set_xlabel("UTC (time of day)")
+    fig.tight_layout()
+
+
+def _stride(n: int) -> int:
+    return max(1, int(math.ceil(n / MAX_PLOT_POINTS)))
+
+
+def _shade_outages(ax, result, label: bool = False) -> None:
+    for k, (start, end) in enumerate(result.log.gnss.gaps()):
+        ax.axvspan(start, end, color="0.85", lw=0, label="GNSS outage" if label and k == 0 else None)
+
+
+def _track(result) -> str:
     nav, table, gnss = result.nav, result.table, result.log.gnss
     valid = nav.valid
-    fig, ax = plt.subplots(figsize=(8, 6))
-    ax.plot(np.degrees(nav.lon[valid]), np.degrees(nav.lat[valid]), color="0.4", lw=1, label="trajectory (IMU)")
+    s = _stride(int(valid.sum()))
+    fig, ax = plt.subplots(figsize=(10, 8))
+    ax.plot(np.degrees(nav.lon[valid][::s]), np.degrees(nav.lat[valid][::s]), color="0.4", lw=1,
+            label="trajectory (IMU)")
     ax.scatter(gnss.lon_deg, gnss.lat_deg, s=6, color="tab:blue", label="GNSS fixes")
     stations = table[table["lat"].notna()]
     outage = stations["flag"].astype(str).str.contains("outage")
@@ -62,91 +205,244 @@ def _track(result, folder: Path, stem: str) -> str:
     ax.set_xlabel("longitude [deg]")
     ax.set_ylabel("latitude [deg]")
     ax.set_aspect(1.0 / np.cos(np.radians(np.nanmean(gnss.lat_deg))))
+    ax.ticklabel_format(useOffset=False)
+    ax.xaxis.set_major_locator(MaxNLocator(5))
     ax.legend(loc="best", fontsize=8)
-    ax.set_title("Ground track")
-    return _save(fig, folder, f"{stem}_track.png")
+    ax.grid(True, lw=0.4, alpha=0.5)
+    return _png(fig)
 
 
-def _position(result, folder: Path, stem: str) -> str:
+def _accuracy(result) -> str:
+    """Position sigma N/E/U [m] and attitude sigma [deg] of the IMU solution, each on its own axes."""
     nav = result.nav
-    v = nav.valid
-    t = _relative_time(result, nav.time)
-    r0 = nav.r_e[v][0]
-    C = C_e_n(nav.lat[v][0], nav.lon[v][0])
+    v = np.flatnonzero(nav.valid)[:: _stride(int(nav.valid.sum()))]
+    t = nav.time[v]
+    sigma_pos = np.sqrt(nav.pos_var_n[v])
+    fig, axes = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
+    for k, (name, colour) in enumerate(zip(("north", "east", "up"), _COLOURS, strict=True)):
+        axes[0].plot(t, sigma_pos[:, k], color=colour, lw=1.2, label=f"σ {name}")
+        axes[1].plot(t, np.degrees(nav.att_sigma[v, k]), color=colour, lw=1.2, label=f"σ {_ANGLES[k]}")
+    for ax in axes:
+        _shade_outages(ax, result, label=ax is axes[0])
+        ax.set_ylim(bottom=0)
+    axes[0].set_ylabel("position σ [m]")
+    axes[1].set_ylabel("attitude σ [deg]")
+    axes[0].legend(loc="upper left", fontsize=8, ncol=4)
+    axes[1].legend(loc="upper left", fontsize=8, ncol=3)
+    _finish(fig, axes, result)
+    return _png(fig)
+
+
+def _separation(result) -> str | None:
+    """Forward minus smoothed per component, with the +-2 sigma band the filter expects, each on its own axes."""
+    sep = result.nav.forward
+    if sep is None or len(sep.time) == 0:
+        return None
+    fig, axes = plt.subplots(3, 2, figsize=(11, 7.5), sharex=True)
+    for k in range(3):
+        for col, (value, sigma, unit, scale, name) in enumerate((
+                (sep.position[:, k], sep.position_sigma[:, k], "m", 1.0, _COMPONENTS[k]),
+                (sep.attitude[:, k], sep.attitude_sigma[:, k], "deg", np.degrees(1.0), _ANGLES[k]))):
+            ax = axes[k, col]
+            band = 2.0 * sigma * scale
+            ax.fill_between(sep.time, -band, band, color="tab:orange", alpha=0.3, lw=0,
+                            label="±2σ expected" if k == 0 else None)
+            ax.plot(sep.time, value * scale, color="tab:blue", lw=0.9, label="forward − smoothed" if k == 0 else None)
+            ax.set_ylabel(f"{name} [{unit}]")
+            # the band is wide at the first epochs (the alignment's prior): scale to the bulk, not the start
+            limit = max(float(np.nanpercentile(np.abs(value * scale), 99.5)), float(np.nanpercentile(band, 95)),
+                        1e-6)
+            ax.set_ylim(-1.15 * limit, 1.15 * limit)
+    axes[0, 0].legend(loc="upper right", fontsize=8)
+    _finish(fig, axes, result)
+    return _png(fig)
+
+
+def _separation_table(result) -> str:
+    sep = result.nav.forward
+    rows = []
+    for label, values, sigma, scale, unit, digits in (
+            *((c, sep.position[:, k], sep.position_sigma[:, k], 1.0, "m", 3) for k, c in enumerate(_COMPONENTS)),
+            *((a, sep.attitude[:, k], sep.attitude_sigma[:, k], np.degrees(1.0), "deg", 4)
+              for k, a in enumerate(_ANGLES))):
+        worst = int(np.nanargmax(np.abs(values)))
+        inside = float(np.mean(np.abs(values) <= 2.0 * sigma + 1e-12)) * 100.0
+        rows.append((f"{label} [{unit}]", _number(float(np.sqrt(np.nanmean(values**2))) * scale, digits),
+                     f"{_number(float(values[worst]) * scale, digits)} at {utc(float(sep.time[worst]))}",
+                     _number(float(np.nanmedian(sigma)) * scale, digits), f"{inside:.1f} %"))
+    return _table(rows, header=("component", "RMS", "largest", "median expected σ", "inside ±2σ"), cls="numbers")
+
+
+def _position(result) -> str:
+    nav = result.nav
+    v = np.flatnonzero(nav.valid)
+    r0 = nav.r_e[v[0]]
+    C = C_e_n(nav.lat[v[0]], nav.lon[v[0]])
+    v = v[:: _stride(len(v))]
+    t = nav.time[v]
     ned = (nav.r_e[v] - r0) @ C.T
-    sigma = np.sqrt(nav.pos_var_n[v])
     v_n = nav.v_n[v]
-    fig, axes = plt.subplots(3, 2, figsize=(11, 8), sharex=True)
-    for k, name in enumerate(("north", "east", "down")):
-        axes[k, 0].plot(t[v], ned[:, k], lw=1)
+    fig, axes = plt.subplots(3, 2, figsize=(11, 7.5), sharex=True)
+    for k, name in enumerate(_COMPONENTS):
+        axes[k, 0].plot(t, ned[:, k], lw=1)
         axes[k, 0].set_ylabel(f"{name} [m]")
-        ax2 = axes[k, 0].twinx()
-        ax2.plot(t[v], sigma[:, k], color="tab:orange", lw=0.8)
-        ax2.set_ylabel("σ [m]", color="tab:orange")
-        axes[k, 1].plot(t[v], v_n[:, k], lw=1)
+        axes[k, 1].plot(t, v_n[:, k], lw=1, color="tab:purple")
         axes[k, 1].set_ylabel(f"v {name} [m/s]")
-    axes[2, 0].set_xlabel("time since start [s]")
-    axes[2, 1].set_xlabel("time since start [s]")
-    fig.suptitle("IMU position relative to the start (σ in orange) and velocity, NED")
-    return _save(fig, folder, f"{stem}_position.png")
+    axes[0, 0].set_title("IMU position relative to the first solution, NED", fontsize=10)
+    axes[0, 1].set_title("IMU velocity, NED", fontsize=10)
+    _finish(fig, axes, result)
+    return _png(fig)
 
 
-def _attitude(result, folder: Path, stem: str) -> str:
+def _attitude(result) -> str | None:
     table = result.table[result.table["lat"].notna()]
-    t = _relative_time(result, table["time"].to_numpy())
-    fig, axes = plt.subplots(3, 1, figsize=(11, 7), sharex=True)
-    for ax, name in zip(axes, ("roll", "pitch", "yaw"), strict=True):
-        value = table[name].to_numpy()
+    if table.empty:
+        return None
+    t = table["time"].to_numpy()
+    fig, axes = plt.subplots(3, 1, figsize=(11, 6.5), sharex=True)
+    for ax, name in zip(axes, _ANGLES, strict=True):
+        value = table[name].to_numpy(float)
         if name == "yaw":
-            value = np.unwrap(np.radians(value))
-            value = np.degrees(value)
-        sigma = table[f"sigma_{name}"].to_numpy()
-        ax.plot(t, value, lw=1)
-        ax.fill_between(t, value - sigma, value + sigma, alpha=0.4, color="tab:orange", label="±σ")
+            value = np.degrees(np.unwrap(np.radians(value)))
+        ax.plot(t, value, ".", ms=3, color="tab:blue")
         ax.set_ylabel(f"{name} [deg]")
-    axes[0].legend(loc="upper right", fontsize=8)
-    axes[-1].set_xlabel("time since start [s]")
-    fig.suptitle("Camera attitude at the exposures (ZYX to NED) with ±σ")
-    return _save(fig, folder, f"{stem}_attitude.png")
+    axes[-1].set_ylabel("yaw [deg] (unwrapped)")
+    _finish(fig, axes, result)
+    return _png(fig)
 
 
-def _innovations(result, folder: Path, stem: str) -> str:
+def _innovations(result) -> str:
     gnss = result.nav.gnss
-    used = gnss.status >= 0
-    t = _relative_time(result, gnss.time)
     statistic = gnss.normalised_innovation_sq
-    fig, ax = plt.subplots(figsize=(11, 4))
-    ax.semilogy(t[used & (gnss.status >= 1)], statistic[used & (gnss.status >= 1)], ".", label="used")
+    used = gnss.status >= 1
+    fig, ax = plt.subplots(figsize=(11, 3.8))
+    ax.semilogy(gnss.time[used], statistic[used], ".", ms=4, label="used")
     rejected = gnss.status == 0
     if rejected.any():
-        ax.semilogy(t[rejected], statistic[rejected], "x", color="tab:red", ms=9, label="rejected")
-    ax.axhline(result.config.gate_chi2, color="black", ls="--", label=f"χ² gate {result.config.gate_chi2:g}")
-    ax.set_xlabel("time since start [s]")
+        ax.semilogy(gnss.time[rejected], statistic[rejected], "x", color="tab:red", ms=9, label="rejected")
+    gate = result.config.gate_chi2
+    ax.axhline(gate, color="black", ls="--", label=f"χ² gate {gate:g}")
+    ax.axhline(3.0, color="0.5", ls=":", label="expected mean 3")
+    _shade_outages(ax, result, label=True)
     ax.set_ylabel("normalised innovation² [-]")
-    ax.legend(fontsize=8)
-    ax.set_title("GNSS position innovations")
-    return _save(fig, folder, f"{stem}_innovations.png")
+    ax.legend(fontsize=8, loc="upper right", ncol=4)
+    _finish(fig, ax, result)
+    return _png(fig)
 
 
-def _biases(result, folder: Path, stem: str) -> str | None:
+def _status_values(result) -> np.ndarray | None:
+    status = result.log.data.get("status")
+    if status is None or len(status) != len(result.log.time):
+        return None
+    return np.asarray(status)
+
+
+def _gnss_status(result, gaps: list[tuple[float, float]]) -> str:
+    """STATUS[HEX] over time (one level per value), the GNSS fixes (used / rejected) and the IMU gaps."""
+    status = _status_values(result)
+    gnss = result.nav.gnss
+    n_levels = len(np.unique(status)[:12]) if status is not None else 0
+    rows = 2 if status is not None else 1
+    heights = [0.5 + 0.35 * n_levels, 1.1] if rows == 2 else [1.1]
+    fig, axes = plt.subplots(rows, 1, figsize=(11, 0.9 + sum(heights)), sharex=True, squeeze=False,
+                             height_ratios=heights)
+    axes = axes[:, 0]
+    if status is not None:
+        values, counts = np.unique(status, return_counts=True)
+        order = values[np.argsort(-counts)][:12]
+        level = {int(v): k for k, v in enumerate(sorted(int(x) for x in order))}
+        y = np.array([level.get(int(v), -1) for v in status], float)
+        y[y < 0] = np.nan
+        s = _stride(len(y))
+        axes[0].step(result.log.time[::s], y[::s], where="post", color="tab:blue", lw=1.2)
+        axes[0].set_yticks(range(len(level)), [f"0x{v:X}" for v in sorted(level)])
+        axes[0].set_ylim(-0.5, len(level) - 0.5)
+        axes[0].set_ylabel("STATUS[HEX]")
+    ax = axes[-1]
+    used, rejected, unused = gnss.status >= 1, gnss.status == 0, gnss.status < 0
+    ax.plot(gnss.time[used], np.ones(used.sum()), "|", color="tab:green", ms=10, label="fix used")
+    if unused.any():
+        ax.plot(gnss.time[unused], np.ones(unused.sum()), "|", color="0.6", ms=10, label="fix not processed")
+    if rejected.any():
+        ax.plot(gnss.time[rejected], np.ones(rejected.sum()), "x", color="tab:red", ms=9, label="fix rejected")
+    for axis in axes:
+        _shade_outages(axis, result, label=axis is ax)
+        for k, (start, end) in enumerate(gaps):
+            axis.axvspan(start, max(end, start + 0.5), color="tab:purple", alpha=0.35, lw=0,
+                         label="IMU gap" if k == 0 and axis is ax else None)
+    ax.set_yticks([])
+    ax.set_ylim(0.5, 1.5)
+    ax.set_ylabel("GNSS fixes")
+    ax.legend(fontsize=8, loc="upper right", ncol=4)
+    _finish(fig, axes, result)
+    return _png(fig)
+
+
+def _status_table(result) -> str:
+    status = _status_values(result)
+    name = html.escape(result.log.column_names.get("status", "STATUS[HEX]"))
+    if status is None:
+        return f"<p>The POS log has no {name} column: no receiver status to show.</p>"
+    t = result.log.time
+    change = np.flatnonzero(np.diff(status.astype(np.int64)) != 0) + 1
+    starts = np.r_[0, change]
+    ends = np.r_[change, len(status)]
+    period = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    rows = []
+    values, counts = np.unique(status, return_counts=True)
+    for value, count in sorted(zip(values.tolist(), counts.tolist(), strict=True), key=lambda x: -x[1]):
+        runs = [(s, e) for s, e in zip(starts, ends, strict=True) if int(status[s]) == value]
+        spans = ", ".join(f"{utc(t[s], 0)}–{utc(t[e - 1] + period, 0)}" for s, e in runs[:4])
+        if len(runs) > 4:
+            spans += f", … ({len(runs)} stretches)"
+        rows.append((f"0x{int(value):X}", f"{count:,}", f"{100.0 * count / len(status):.1f} %", spans))
+    return (f"<p>The receiver's status word from column {name}, as logged (its bits are the receiver maker's; "
+            "georef does not decode them).</p>"
+            + _table(rows, header=("value", "rows", "share", "when (UTC)"), cls="numbers"))
+
+
+def _imu_gaps(result) -> list[tuple[float, float]]:
+    diagnostics = result.nav.diagnostics
+    if diagnostics is not None:
+        return list(diagnostics.imu_gaps)
+    log = result.log
+    if not all(f"{p}_{a}" in log.data for p in ("gyro", "acc") for a in "xyz"):
+        return []
+    from georef.fusion.ins import imu_gaps
+
+    return [(float(log.time[a]), float(log.time[b]))
+            for a, b in imu_gaps(np.asarray(log.time, float), log.vector("gyro"), log.vector("acc"))]
+
+
+def _gaps_table(gaps: list[tuple[float, float]]) -> str:
+    if not gaps:
+        return "<p>IMU data gaps: none (no missing or repeated IMU samples).</p>"
+    rows = [(utc(a, 2), utc(b, 2), f"{b - a:.3f}") for a, b in gaps]
+    return ("<p>IMU data gaps: spans without a real IMU measurement (time gaps and runs of interpolated samples); "
+            "the filter bridges them with raised process noise.</p>"
+            + _table(rows, header=("last sample before (UTC)", "first sample after (UTC)", "length [s]"),
+                     cls="numbers"))
+
+
+def _biases(result) -> str | None:
     info = result.nav.info
     if "gyro_bias" not in info:
         return None
-    v = result.nav.valid
-    t = _relative_time(result, result.nav.time[v])
-    fig, axes = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
+    v = np.flatnonzero(result.nav.valid)
+    v = v[:: _stride(len(v))]
+    t = result.nav.time[v]
+    fig, axes = plt.subplots(2, 1, figsize=(11, 5.5), sharex=True)
     for k, axis in enumerate("xyz"):
-        axes[0].plot(t, np.degrees(info["gyro_bias"][v, k]) * 3600.0, label=axis)
-        axes[1].plot(t, info["accel_bias"][v, k] / 9.80665 * 1000.0, label=axis)
+        axes[0].plot(t, np.degrees(info["gyro_bias"][v, k]) * 3600.0, color=_COLOURS[k], label=axis)
+        axes[1].plot(t, info["accel_bias"][v, k] / 9.80665 * 1000.0, color=_COLOURS[k], label=axis)
     axes[0].set_ylabel("gyro bias [deg/h]")
     axes[1].set_ylabel("accelerometer bias [mg]")
-    axes[1].set_xlabel("time since start [s]")
-    axes[0].legend(fontsize=8)
-    fig.suptitle("Estimated IMU biases (smoothed)")
-    return _save(fig, folder, f"{stem}_biases.png")
+    axes[0].legend(fontsize=8, ncol=3, loc="upper right")
+    _finish(fig, axes, result)
+    return _png(fig)
 
 
-def _yaw_offset(result, folder: Path, stem: str) -> str | None:
+def _yaw_offset(result) -> str | None:
     """The POS unit's yaw origin: the axis method's followed offset, or the full-state filter's smoothed origin
     state with its sigma (and the windows recovered from IACC that gave its prior, when there were)."""
     info = result.nav.info
@@ -162,117 +458,374 @@ def _yaw_offset(result, folder: Path, stem: str) -> str | None:
 
         epoch_rows, epoch_sigma = info.get("epoch_rows"), info.get("epoch_sigma")
         value = np.unwrap(np.asarray(origin, float)[rows])
-        t = _relative_time(result, result.nav.time[rows])
-        fig, ax = plt.subplots(figsize=(11, 4))
+        t = result.nav.time[rows]
+        fig, ax = plt.subplots(figsize=(11, 3.8))
         ax.plot(t, np.degrees(value), color="tab:red", label="smoothed origin (filter state)")
         if epoch_rows is not None and epoch_sigma is not None and len(epoch_rows):
-            sigma = np.interp(result.nav.time[rows], result.nav.time[epoch_rows], epoch_sigma[:, UNIT_YAW])
+            sigma = np.interp(t, result.nav.time[epoch_rows], epoch_sigma[:, UNIT_YAW])
             ax.fill_between(t, np.degrees(value - sigma), np.degrees(value + sigma), color="tab:red", alpha=0.2,
-                            label="1 sigma")
+                            label="±1σ")
         if solution is not None:
             w = solution.windows
             ok = w.accepted
             offset = np.degrees(value[0] + wrap_pi(w.offset[ok] - value[0]))
-            ax.errorbar(_relative_time(result, w.time[ok]), offset, yerr=np.degrees(w.sigma[ok]), fmt="o", ms=3,
-                        color="tab:blue", label="IACC windows (prior)")
-        ax.set_xlabel("time since start [s]")
+            ax.errorbar(w.time[ok], offset, yerr=np.degrees(w.sigma[ok]), fmt="o", ms=3, color="tab:blue",
+                        label="IACC windows (prior)")
         ax.set_ylabel("yaw origin [deg]")
         ax.legend(fontsize=8)
-        ax.set_title("Yaw origin of the POS unit: true yaw = unit yaw + origin")
-        return _save(fig, folder, f"{stem}_yaw_offset.png")
+        ax.set_title("true yaw = unit yaw + origin", fontsize=10)
+        _finish(fig, ax, result)
+        return _png(fig)
     if solution is None:
         return None
     w = solution.windows
-    t = _relative_time(result, result.log.time)
     value, sigma = solution.at(result.log.time)
-    fig, ax = plt.subplots(figsize=(11, 4))
+    fig, ax = plt.subplots(figsize=(11, 3.8))
     ok = w.accepted
-    tw = _relative_time(result, w.time)
-    ax.errorbar(tw[ok], wrap_360(np.degrees(w.offset[ok])), yerr=np.degrees(w.sigma[ok]), fmt="o", ms=3,
+    ax.errorbar(w.time[ok], wrap_360(np.degrees(w.offset[ok])), yerr=np.degrees(w.sigma[ok]), fmt="o", ms=3,
                 label="windows")
-    ax.plot(t, wrap_360(np.degrees(value)), color="tab:red", label="followed offset")
-    ax.fill_between(t, wrap_360(np.degrees(value)) - np.degrees(sigma), wrap_360(np.degrees(value)) + np.degrees(sigma),
-                    color="tab:red", alpha=0.2)
-    ax.set_xlabel("time since start [s]")
+    ax.plot(result.log.time, wrap_360(np.degrees(value)), color="tab:red", label="followed offset")
+    ax.fill_between(result.log.time, wrap_360(np.degrees(value)) - np.degrees(sigma),
+                    wrap_360(np.degrees(value)) + np.degrees(sigma), color="tab:red", alpha=0.2, label="±1σ")
     ax.set_ylabel("yaw offset [deg]")
     ax.legend(fontsize=8)
-    ax.set_title("Yaw origin of the POS unit: true yaw = unit yaw + offset")
-    return _save(fig, folder, f"{stem}_yaw_offset.png")
+    ax.set_title("true yaw = unit yaw + offset", fontsize=10)
+    _finish(fig, ax, result)
+    return _png(fig)
 
 
-_STATUS_COLOURS = {"pass": "#1a7f37", "warn": "#9a6700", "fail": "#cf222e"}
-
-
-def _quality_checks(verdict) -> str:
-    """The verdict and one row per check (status, name, message) as HTML."""
+# ---- tables -------------------------------------------------------------------------------------------------
+def _verdict(verdict) -> str:
     colour = _STATUS_COLOURS["pass" if verdict.passed else "fail"]
-    rows = "".join(f'<tr><td style="color:{_STATUS_COLOURS[c.status]};font-weight:bold">{html.escape(c.status)}</td>'
-                   f"<th>{html.escape(c.name)}</th><td>{html.escape(c.message)}</td></tr>" for c in verdict.checks)
-    return (f'<p class="verdict" style="color:{colour};font-weight:bold">QC {html.escape(verdict.short())}</p>'
-            f"<table>{rows}</table>")
+    word = "passed" if verdict.passed else "failed"
+    reasons = [c for c in verdict.checks if c.status != "pass"]
+    lead = (f"{len(verdict.failures)} check(s) failed: do not use the outputs before you have understood them."
+            if not verdict.passed else
+            f"with {len(verdict.warnings)} warning(s): the outputs are usable; look at the warnings." if reasons
+            else "every check passed.")
+    rows = [(_Raw(f'<span class="status" style="color:{_STATUS_COLOURS[c.status]}">{html.escape(c.status)}</span>'),
+             c.name, c.message) for c in sorted(verdict.checks, key=lambda c: ("fail", "warn", "pass").index(c.status))]
+    return (f'<p class="verdict" style="border-color:{colour}"><span style="color:{colour}">QC {word}</span> — '
+            f"{html.escape(lead)}</p>"
+            + _table(rows, header=("status", "check", "what was found")))
 
 
-def write_report(result, path: Path | str, accuracy: dict[str, float] | None = None, verdict=None) -> Path:
-    """Write the HTML report and its PNG plots (``<stem>_*.png`` beside it); returns the HTML path.
+def _flag_counts(table) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for flag in table["flag"].astype(str):
+        for part in (p.strip() for p in flag.split(";")):
+            if part:
+                counts[part] = counts.get(part, 0) + 1
+    return counts
 
-    ``verdict``: the run's :class:`georef.qc.Verdict` (computed here when not given)."""
+
+def _summary(result, accuracy: dict[str, float] | None, gaps: list[tuple[float, float]]) -> str:
+    s = result.summary()
+    table = result.table
+    nav = result.nav
+    rows: list[tuple[object, object]] = []
+    counts = _flag_counts(table)
+    flagged = ", ".join(f"{n} {flag}" for flag, n in counts.items())
+    rows.append(("frames", f"{s['frames_written']} written, {s['frames_flagged']} flagged"
+                 + (f" ({flagged})" if flagged else "")))
+    t0, t1 = s["time_span_s"]
+    rows.append(("time span", utc_span(t0, t1)))
+    rows.append(("IMU", f"{s['imu_rows']:,} rows at {s['imu_rate_hz']:.1f} Hz; {len(gaps)} data gap(s)"))
+    gnss = nav.gnss
+    rejected = gnss.status == 0
+    text = (f"{s['gnss_epochs']} fixes: {s['gnss_used']} used, {int(rejected.sum())} rejected by the gate, "
+            f"{int((gnss.status < 0).sum())} not processed; {len(s['gnss_gaps'])} outage(s)")
+    rows.append(("GNSS", text))
+    if rejected.any():
+        shown = [f"{utc(t)} (line {int(line)})" for t, line in zip(gnss.time[rejected], gnss.line[rejected],
+                                                                  strict=True)]
+        rows.append(("rejected fixes", ", ".join(shown[:20]) + (f", … ({len(shown)} in all)" if len(shown) > 20
+                                                                else "")))
+    for start, end in s["gnss_gaps"][:20]:
+        rows.append(("GNSS outage", utc_span(start, end, 0)))
+    if len(s["gnss_gaps"]) > 20:
+        rows.append(("GNSS outage", f"… {len(s['gnss_gaps']) - 20} more"))
+    rows.append(("method", s["method"]))
+    if s.get("heading_source") is not None:
+        rows.append(("heading source", s["heading_source"]))
+    if s.get("unit_yaw_origin_deg") is not None:
+        drift = s.get("unit_yaw_drift_deg_per_min")
+        rows.append(("POS unit yaw origin", f"{_number(s['unit_yaw_origin_deg'])} ± "
+                     f"{_number(s['unit_yaw_origin_sigma_deg'])} deg at the start (true yaw = unit yaw + origin)"
+                     + (f", drift {_number(drift)} deg/min" if drift is not None else "")))
+    if s.get("yaw_offset_deg") is not None:
+        rows.append(("POS unit yaw offset", f"{_number(s['yaw_offset_deg'])} ± {_number(s['yaw_offset_sigma_deg'])}"
+                     f" deg, drift {_number(s['yaw_drift_deg_per_min'])} ± "
+                     f"{_number(s['yaw_drift_sigma_deg_per_min'])} deg/min"))
+    if s.get("gnss_sigma_fitted_m") is not None:
+        rows.append(("fitted noise", f"GNSS σ {_triple(s['gnss_sigma_fitted_m'], ('N', 'E', 'U'), 'm', 2)}; "
+                     f"velocity random walk {_number(s['vrw_m_s_sqrt_h'])} m/s/√h, angle random walk "
+                     f"{_number(s['arw_deg_sqrt_h'])} deg/√h"))
+    if s.get("ground_vehicle"):
+        rows.append(("ground vehicle", "non-holonomic constraints applied"))
+    quirks = result.log.time_repairs.quirk_lines
+    rows.append(("time tags repaired", f"{len(quirks)}" + (f" (lines {readable(quirks)})" if quirks else "")))
+    valid = table[table["sigma_n"].notna()]
+    if len(valid):
+        horizontal = np.hypot(valid["sigma_n"], valid["sigma_e"])
+        rows.append(("frame σ, median (largest)",
+                     f"north {_number(valid['sigma_n'].median())} ({_number(valid['sigma_n'].max())}), east "
+                     f"{_number(valid['sigma_e'].median())} ({_number(valid['sigma_e'].max())}), up "
+                     f"{_number(valid['sigma_u'].median())} ({_number(valid['sigma_u'].max())}) m; horizontal "
+                     f"{_number(float(np.median(horizontal)))} m"))
+        rows.append(("frame attitude σ, median (largest)",
+                     ", ".join(f"{a} {_number(valid[f'sigma_{a}'].median(), 4)} "
+                               f"({_number(valid[f'sigma_{a}'].max(), 4)})" for a in _ANGLES) + " deg"))
+    sep = nav.forward
+    if sep is not None and len(sep.time):
+        rms_h = float(np.sqrt(np.mean(sep.position[:, 0] ** 2 + sep.position[:, 1] ** 2)))
+        rms_v = float(np.sqrt(np.mean(sep.position[:, 2] ** 2)))
+        rows.append(("forward − smoothed, RMS", f"horizontal {_number(rms_h)} m, vertical {_number(rms_v)} m, yaw "
+                     f"{_number(float(np.degrees(np.sqrt(np.mean(sep.attitude[:, 2] ** 2)))), 4)} deg"))
+    for key, value in (accuracy or {}).items():
+        label, unit = key, ""
+        for suffix, name in (("_m", "m"), ("_deg", "deg"), ("_s", "s")):
+            if key.endswith(suffix):
+                label, unit = key[: -len(suffix)], f" [{name}]"
+        digits = 4 if unit == " [deg]" else 3
+        shown = _number(float(value), digits) if isinstance(value, float | int) else readable(value)
+        rows.append((f"against the reference: {label.replace('_', ' ').replace('rms', 'RMS')}{unit}", shown))
+    for notice in result.notices:
+        rows.append(("input notice", str(notice)))
+    known = {"frames_written", "frames_flagged", "frames_outside_span", "frames_in_outage", "frames_after_last_fix",
+             "frames_before_first_fix", "time_span_s", "imu_rows", "imu_rate_hz", "gnss_epochs", "gnss_used",
+             "gnss_rejected_lines", "gnss_gaps", "yaw_offset_deg", "yaw_offset_sigma_deg", "yaw_drift_deg_per_min",
+             "yaw_drift_sigma_deg_per_min", "time_quirks_repaired", "method", "heading_source",
+             "unit_yaw_origin_deg", "unit_yaw_origin_sigma_deg", "unit_yaw_drift_deg_per_min",
+             "gnss_sigma_fitted_m", "vrw_m_s_sqrt_h", "arw_deg_sqrt_h", "ground_vehicle"}
+    for key, value in s.items():  # figures added to the summary later are shown, readably
+        if key not in known and value is not None:
+            rows.append((key.replace("_", " "), readable(value)))
+    return _table(rows)
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _inputs(result, extra: dict[str, Path | str] | None) -> list[tuple[str, Path]]:
+    files = [("POS log", Path(result.log.path)), ("exposures", Path(result.exposures.path))]
+    files += [(label, Path(p)) for label, p in (extra or {}).items() if p is not None]
+    return files
+
+
+def _provenance(result, inputs: dict[str, Path | str] | None, command: str | None, created: dt.datetime) -> str:
+    versions = [f"georef {_version('georef')}", f"Python {platform.python_version()}", f"NumPy {np.__version__}"]
+    try:
+        import pyproj
+
+        versions.append(f"pyproj {pyproj.__version__} (PROJ {pyproj.proj_version_str})")
+    except ImportError:  # pragma: no cover - a declared dependency
+        pass
+    rows: list[tuple[object, object]] = [
+        ("software", ", ".join(versions)),
+        ("report written", created.strftime("%Y-%m-%d %H:%M:%S UTC")),
+        ("host", f"{platform.system()} {platform.machine()}"),
+    ]
+    if command:
+        rows.append(("command", _Raw(f"<code>{html.escape(command)}</code>")))
+    file_rows = []
+    for label, path in _inputs(result, inputs):
+        try:
+            size, digest = _size(path.stat().st_size), _sha256(path)
+        except OSError as exc:
+            size, digest = "—", f"not readable now: {exc.strerror}"
+        file_rows.append((label, _Raw(f"<code>{html.escape(str(path))}</code>"), size, _Raw(f'<code class="hash">'
+                                                                                              f"{digest}</code>")))
+    cfg = result.config
+    diagnostics = result.nav.diagnostics
+    mounting: list[tuple[object, object]] = [
+        ("GNSS lever arm (IMU → antenna)", _triple(cfg.lever_arm_gnss, ("x", "y", "z"), "m (body: x forward, y right, "
+                                                                                          "z down)")),
+    ]
+    calibration = getattr(diagnostics, "calibration", None)
+    if calibration is not None:
+        mounting.append(("GNSS lever arm the data show", ", ".join(
+            f"{a} {_number(float(v))} ± {_number(float(s))}" for a, v, s in
+            zip("xyz", calibration.lever_arm, calibration.lever_arm_sigma, strict=True)) + " m (not applied)"))
+    mounting += [
+        ("camera lever arm (IMU → perspective centre)", _triple(cfg.lever_arm_camera, ("x", "y", "z"), "m (body)")),
+        ("boresight", _triple(cfg.boresight, ("roll", "pitch", "yaw"), "deg (C_c_b = Rz(yaw) Ry(pitch) Rx(roll))")),
+        ("GNSS σ given", _triple(cfg.gnss_sigma, ("N", "E", "U"), "m", 2)),
+        ("innovation gate", f"χ² {cfg.gate_chi2:g} on the 3-D position innovation ({_gate_probability(cfg.gate_chi2)}"
+                            " of good fixes pass)"),
+        ("GNSS latency applied", f"{_number(float(cfg.gnss_latency or 0.0))} s"
+         + (f"; the data show {_number(calibration.latency)} ± {_number(calibration.latency_sigma)} s (not applied)"
+            if calibration is not None else "")),
+        ("camera trigger latency", f"{_number(float(cfg.camera_time_offset))} s"),
+        ("projected CRS", cfg.crs or "— (geographic coordinates only)"),
+    ]
+    return (_table(rows)
+            + "<h3>Input files</h3>" + _table(file_rows, header=("file", "path", "size", "SHA-256"))
+            + "<h3>Mounting and GNSS</h3>" + _table(mounting))
+
+
+def _gate_probability(gate: float) -> str:
+    from scipy.special import chdtr
+
+    return f"{100.0 * float(chdtr(3, gate)):.2f} %"
+
+
+def _version(package: str) -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(package)
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
+_SETTING_UNITS = {
+    "lever_arm_gnss": "m, body x/y/z", "lever_arm_camera": "m, body x/y/z", "boresight": "deg, roll/pitch/yaw",
+    "gnss_sigma": "m, N/E/U", "gnss_rate_hz": "Hz", "camera_utc_offset": "h", "camera_time_offset": "s",
+    "gnss_latency": "s", "magnetic_declination": "deg, east positive", "yaw_window": "s", "yaw_step": "s",
+    "yaw_bandwidth": "s", "unit_level_sigma": "deg", "unit_yaw_sigma": "deg", "unit_level_time": "s",
+    "unit_angle_noise": "deg", "unit_drift_change": "deg/min/√min", "axis_accel_sigma": "m/s²",
+    "axis_bias_sigma": "m/s²", "axis_bias_time": "s", "gate_chi2": "χ², 3 d.o.f.", "covariance_rate": "Hz",
+}
+
+
+def _settings(cfg) -> str:
+    rows = []
+    for f in dataclasses.fields(cfg):
+        value = getattr(cfg, f.name)
+        if value is None:
+            shown = "— (not set)"
+        elif isinstance(value, dict):
+            shown = readable(value) if value else "none (defaults)"
+        else:
+            shown = readable(value)
+        rows.append((_Raw(f"<code>{html.escape(f.name)}</code>"), shown, _SETTING_UNITS.get(f.name, "")))
+    return ("<p>Every setting of the run (<code>flight.toml</code> and command-line options applied over the "
+            "defaults).</p>" + _table(rows, header=("setting", "value", "unit")))
+
+
+def _flagged(table) -> str:
+    flagged = table[table["flag"].astype(str) != ""]
+    if flagged.empty:
+        return "<p>No frame is flagged: every frame has a position, an attitude and their σ.</p>"
+    rows = [(str(frame), utc(float(time), 2), flag)
+            for frame, time, flag in zip(flagged["frame"], flagged["time"], flagged["flag"].astype(str), strict=True)]
+    return (f"<p>{len(flagged)} of {len(table)} frames are flagged (their rows are in the EO table with the same "
+            "flag).</p>" + _table(rows, header=("frame", "exposure (UTC)", "flag"), cls="flagged"))
+
+
+# ---- the page -----------------------------------------------------------------------------------------------
+_CSS = """
+body { font-family: system-ui, sans-serif; margin: 1.5em auto; max-width: 1150px; color: #222; padding: 0 1em; }
+h1 { font-size: 1.6em; margin-bottom: 0.1em; } h2 { font-size: 1.25em; border-bottom: 1px solid #bbb;
+padding-bottom: 0.2em; margin-top: 1.6em; } h3 { font-size: 1.05em; margin-bottom: 0.3em; }
+.subtitle { color: #555; margin-top: 0; } nav { font-size: 0.9em; line-height: 1.7; }
+nav a { margin-right: 0.9em; white-space: nowrap; } img { max-width: 100%; display: block; }
+table { border-collapse: collapse; margin: 0.4em 0; font-size: 0.92em; }
+th, td { text-align: left; padding: 0.25em 0.8em; border-bottom: 1px solid #e4e4e4; vertical-align: top; }
+thead th { background: #f3f3f3; } tbody th { font-weight: 600; white-space: nowrap; }
+table.numbers td { font-variant-numeric: tabular-nums; } .status { font-weight: bold; text-transform: uppercase; }
+.verdict { font-size: 1.2em; font-weight: bold; border-left: 6px solid; padding: 0.4em 0.8em; background: #fafafa; }
+code { font-size: 0.9em; } code.hash { font-size: 0.8em; word-break: break-all; }
+.note { color: #555; font-size: 0.92em; }
+"""
+
+
+def flight_name(result) -> str:
+    """The flight's name: the folder of its POS log (flights are kept one per folder), else the file's stem."""
+    path = Path(result.log.path).resolve()
+    return path.parent.name or path.stem
+
+
+def write_report(result, path: Path | str, accuracy: dict[str, float] | None = None, verdict=None,
+                 inputs: dict[str, Path | str | None] | None = None, command: str | None = None,
+                 flight: str | None = None) -> Path:
+    """Write the report as one self-contained HTML file (atomically); returns its path.
+
+    ``verdict``: the run's :class:`georef.qc.Verdict` (computed here when not given); ``accuracy``: figures
+    against a reference (``georef.evaluate.accuracy``); ``inputs``: further input files to list with their
+    hashes, label -> path (e.g. ``{"configuration": "flight.toml"}``), None values skipped; ``command``: the
+    command line that made the run; ``flight``: the name in the title (default :func:`flight_name`).
+    """
     if verdict is None:
         from georef.qc import assess_result
 
         verdict = assess_result(result)
-    path = Path(path)
-    folder = path.parent
-    folder.mkdir(parents=True, exist_ok=True)
-    stem = path.stem
-    images = {"track": _track(result, folder, stem), "position": _position(result, folder, stem),
-              "attitude": _attitude(result, folder, stem), "innovations": _innovations(result, folder, stem),
-              "biases": _biases(result, folder, stem), "yaw-offset": _yaw_offset(result, folder, stem)}
-    summary = result.summary()
-    rows = [(key.replace("_", " "), value) for key, value in summary.items()]
-    table = result.table
-    valid = table[table["sigma_n"].notna()]
-    if len(valid):
-        rows += [("median σ north/east/up [m]", f"{valid['sigma_n'].median():.3f} / {valid['sigma_e'].median():.3f} / "
-                                                 f"{valid['sigma_u'].median():.3f}"),
-                 ("median σ roll/pitch/yaw [deg]", f"{valid['sigma_roll'].median():.4f} / "
-                                                    f"{valid['sigma_pitch'].median():.4f} / "
-                                                    f"{valid['sigma_yaw'].median():.4f}")]
-    for key, value in (accuracy or {}).items():
-        rows.append((f"against reference: {key}", f"{value:.4f}"))
-
-    def fmt(value: object) -> str:
-        if isinstance(value, float):
-            return f"{value:.4f}"
-        if isinstance(value, tuple | list) and len(value) > 12:
-            return f"{len(value)} items: " + ", ".join(map(str, value[:12])) + " ..."
-        return str(value)
-
+    created = dt.datetime.now(dt.UTC)
+    flight = flight or flight_name(result)
+    gaps = _imu_gaps(result)
+    method = result.nav.method
+    separation = _separation(result)
+    if separation is not None:
+        separation_html = (
+            "<p>The forward filter's solution minus the smoothed one, at the filter's covariance epochs, with the "
+            "±2σ band the filter expects for it (σ² = forward variance − smoothed variance). Stretches outside the "
+            "band are where the forward pass and the smoother disagree: a bad fix, an outage, a mis-modelled "
+            "motion.</p>" + f'<img src="{separation}" alt="forward minus smoothed">' + _separation_table(result))
+    elif method == "ekf":
+        separation_html = ("<p>Method ekf is the forward filter alone: there is no smoothed solution to compare "
+                           "with (run <code>--method rts</code> for it).</p>")
+    else:
+        separation_html = (f"<p>Method {html.escape(method)} has no forward filter pass: the separation is "
+                           "available with <code>--method rts</code>.</p>")
+    plots = {
+        "accuracy": ("1-σ of the IMU position (north, east, up) and attitude, from the solution's covariance; GNSS "
+                     "outages shaded.", _accuracy(result)),
+        "track": ("Trajectory, GNSS fixes, exposures (red: in a GNSS outage) and rejected fixes.", _track(result)),
+        "innovations": ("Each GNSS fix's normalised innovation squared (χ² with 3 degrees of freedom when the model "
+                        "holds) against the gate.", _innovations(result)),
+        "position": ("Smoothed IMU position and velocity (σ: see “Estimated accuracy over time”).", _position(result)),
+        "attitude": ("Camera roll, pitch and yaw at each exposure (ZYX to NED; σ: see “Estimated accuracy over "
+                     "time”).", _attitude(result)),
+        "biases": ("Estimated gyro and accelerometer biases, body axes.", _biases(result)),
+        "yaw-offset": ("The POS unit's yaw origin as the data show it.", _yaw_offset(result)),
+    }
     body = []
     for key, title in SECTIONS:
         body.append(f'<section id="{key}"><h2>{html.escape(title)}</h2>')
-        if key == "qc":
-            body.append(_quality_checks(verdict))
+        if key == "verdict":
+            body.append(_verdict(verdict))
         elif key == "summary":
-            body.append("<table>" + "".join(f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(fmt(v))}</td></tr>"
-                                            for k, v in rows) + "</table>")
-        elif images.get(key):
-            body.append(f'<img src="{html.escape(images[key])}" alt="{html.escape(title)}">')
+            body.append(_summary(result, accuracy, gaps))
+        elif key == "provenance":
+            body.append(_provenance(result, inputs, command, created))
+        elif key == "flagged":
+            body.append(_flagged(result.table))
+        elif key == "separation":
+            body.append(separation_html)
+        elif key == "gnss":
+            body.append(f'<img src="{_gnss_status(result, gaps)}" alt="GNSS status and IMU gaps">')
+            body.append(_status_table(result) + _gaps_table(gaps))
+        elif key == "settings":
+            body.append(_settings(result.config))
         else:
-            body.append("<p>Not estimated by this method.</p>")
+            note, image = plots[key]
+            if image:
+                body.append(f'<p class="note">{html.escape(note)}</p><img src="{image}" alt="{html.escape(title)}">')
+            else:
+                body.append(f"<p>Not estimated by method {html.escape(method)}.</p>")
         body.append("</section>")
+    t0, t1 = float(result.log.time[0]), float(result.log.time[-1])
+    nav_links = " ".join(f'<a href="#{key}">{html.escape(title)}</a>' for key, title in SECTIONS)
+    names = f"{Path(result.log.path).name} + {Path(result.exposures.path).name}"
+    subtitle = (f"{names} · method {method} · {utc_span(t0, t1, 0)} · {len(result.table)} frames · QC "
+                f"{verdict.short()} · georef {_version('georef')}")
     page = f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>georef report: {html.escape(path.stem)}</title>
-<style>
-body {{ font-family: sans-serif; margin: 2em; max-width: 1100px; color: #222; }}
-h1 {{ font-size: 1.6em; }} h2 {{ font-size: 1.2em; border-bottom: 1px solid #ccc; padding-bottom: 0.2em; }}
-img {{ max-width: 100%; }} table {{ border-collapse: collapse; }}
-th, td {{ text-align: left; padding: 0.2em 0.8em; border-bottom: 1px solid #eee; vertical-align: top; }}
-</style></head><body>
-<h1>georef quality report — {html.escape(str(result.log.path.name))}, method {html.escape(result.nav.method)}</h1>
-<p>{len(table)} frames, {int((table['flag'].astype(str) != '').sum())} flagged; units: metres, degrees, seconds.</p>
+<html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width, initial-scale=1">
+<title>georef quality report: flight {html.escape(flight)}</title>
+<style>{_CSS}</style></head><body>
+<h1>Quality report: flight {html.escape(flight)}</h1>
+<p class="subtitle">{html.escape(subtitle)}</p>
+<p class="note">Times are UTC (time of day); units metres, degrees, seconds; σ is one standard deviation.</p>
+<nav>{nav_links}</nav>
 {''.join(body)}
 </body></html>
 """
     with atomic_write(path) as handle:
         handle.write(page)
-    return path
+    return Path(path)

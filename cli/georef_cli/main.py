@@ -213,7 +213,7 @@ def process(
     attitude_source: Annotated[str | None, typer.Option(
         help="Roll and pitch from the POS unit ('unit', default) or recomputed from the raw IMU ('imu').")] = None,
     report: Annotated[Path | None, typer.Option(
-        help="Also write an HTML quality report here (PNG plots beside it).")] = None,
+        help="Also write the quality report here: one self-contained HTML file (docs/report.md).")] = None,
     quiet: Quiet = False,
     verbose: Verbose = False,
     summary_json: SummaryJson = None,
@@ -231,7 +231,7 @@ def process(
     from .summary import run_document
 
     _one_stdout(**{"-o": output, "--summary-json": summary_json})
-    _not_stdout(report, "--report", "the report is a set of files")
+    _not_stdout(report, "--report", "the report is written atomically as a file")
     cfg = load_config(config) if config else ProcessingConfig()
     cfg = cfg.updated(
         method=plain(method), lever_arm_gnss=_triple(gnss_lever_arm, "--gnss-lever-arm", "metres"),
@@ -261,18 +261,34 @@ def process(
     if cfg.image_names:
         ImageNames.parse(cfg.image_names)
     progress, step = _stage_progress(quiet, total=5 if report is not None else 4)
+    from georef.io.atomic import atomic_group, resolve_target
+
+    for target in (*(spec.path for spec in specs), report):  # a device, a directory or a write-protected file:
+        if target is not None and not is_stdout(target):     # refused before processing
+            resolve_target(target)
     with progress if progress is not None else contextlib.nullcontext():
         result = run(pos, camera, cfg, progress=step)
-        step("writing table" if len(specs) == 1 else f"writing {len(specs)} outputs")
-        for spec in specs:
-            write_target(spec.path, lambda path, spec=spec: write_export(
-                result.table, path, spec.fmt, frames=result.frames, odm_angles=cfg.odm_angles))
-        verdict = assess_result(result)
-        if report is not None:
-            from georef.report import write_report
+        def write(spec: Any) -> None:
+            write_target(spec.path, lambda path: write_export(result.table, path, spec.fmt, frames=result.frames,
+                                                              odm_angles=cfg.odm_angles))
 
-            step("writing report")
-            write_report(result, report, verdict=verdict)
+        with atomic_group():  # the files and the report together, or none of them (a full disk, a refused target)
+            step("writing table" if len(specs) == 1 else f"writing {len(specs)} outputs")
+            for spec in specs:
+                if not is_stdout(spec.path):
+                    write(spec)
+            verdict = assess_result(result)
+            if report is not None:
+                import shlex
+
+                from georef.report import write_report
+
+                step("writing report")
+                command = shlex.join(["georef", *sys.argv[1:]]) if Path(sys.argv[0]).name == "georef" else None
+                write_report(result, report, verdict=verdict, inputs={"configuration": config}, command=command)
+        for spec in specs:  # standard output last, once the files are in place
+            if is_stdout(spec.path):
+                write(spec)
     code = 0 if verdict.passed else EXIT_QC_FAILED
     if summary_json is not None:
         outputs = [{"what": "table" if index == 0 else "export", "format": spec.fmt, "path": str(spec.path)}

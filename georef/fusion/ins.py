@@ -37,7 +37,7 @@ from georef.align import GnssEpochs
 from georef.config import ProcessingConfig
 from georef.frames import C_e_n, C_n_e, dcm_to_quat, euler_to_dcm, geodetic_to_ecef
 from georef.frames.mounting import lever_arm_ecef
-from georef.frames.rotations import dcm_to_euler, euler_error_jacobian, wrap_pi
+from georef.frames.rotations import dcm_to_euler, euler_error_jacobian, quat_to_dcm, wrap_pi
 from georef.fusion import ins_layout as layout
 from georef.fusion.alignment import Alignment, align
 from georef.fusion.noise import (
@@ -51,7 +51,7 @@ from georef.fusion.noise import (
     inflated,
     starting_point,
 )
-from georef.fusion.solution import GnssUse, NavSolution
+from georef.fusion.solution import ForwardSeparation, GnssUse, NavSolution
 from georef.io.errors import GeorefError
 from georef.kernels import load as load_kernel
 
@@ -218,6 +218,9 @@ class _Pass:
     first_state: np.ndarray | None = None   # smoothed nominal state at the first epoch
     last_state: np.ndarray | None = None    # and at the last epoch
     diverged: bool = False                  # an estimation pass that stopped at a divergence (no restart)
+    #: smoothed passes with rows: the forward filter's nominal state (E, NS) and its position, velocity and
+    #: attitude covariance (E, 9, 9) at the epochs, copied before the smoother overwrote the covariances
+    forward: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def _fix_table(inputs: InsInputs, cfg: ProcessingConfig, start_row: int) -> _Fixes:
@@ -619,7 +622,10 @@ def _run_pass(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignment, no
     stats = None
     rows = None
     first_state = last_state = None
+    forward = None
     if smooth:
+        if rows_wanted:
+            forward = (nav[ep_row].copy(), ep_Pp[:, :layout.ATT + 3, :layout.ATT + 3].copy())
         err_post, err_pre, stats = kernel.rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start,
                                                        outage_rows[ep_row], noise_vec,
                                                        fix_epoch, fix_z, fix_H, fixes.r, fix_status, *aux, want_stats)
@@ -632,7 +638,46 @@ def _run_pass(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignment, no
         rows = kernel.finish_rows(t, nav, ep_row, zeros, zeros, ep_Pp, ep_Pm)
     return _Pass(nav=nav, ep_row=ep_row, ep_Pp=ep_Pp, ep_Pm=ep_Pm, seg_start=seg_start, fix_status=fix_status,
                  fix_z=fix_z, fix_S=fix_S, fix_d2=fix_d2, stats=stats if want_stats else None, restarts=restarts,
-                 rows=rows, loglik=loglik, first_state=first_state, last_state=last_state, diverged=diverged)
+                 rows=rows, loglik=loglik, first_state=first_state, last_state=last_state, diverged=diverged,
+                 forward=forward)
+
+
+def forward_separation(t: np.ndarray, run: _Pass) -> ForwardSeparation | None:
+    """The forward filter's solution against the smoothed one at the epochs of a smoothed pass with rows (see
+    :class:`~georef.fusion.solution.ForwardSeparation`); None when the pass kept no forward solution.
+
+    Where a restart put several epochs on one row, the last one counts (the rows carry that one's solution)."""
+    if run.forward is None or len(run.ep_row) == 0:
+        return None
+    forward_nav, forward_P = run.forward
+    last = np.r_[run.ep_row[1:] != run.ep_row[:-1], True]
+    rows = run.ep_row[last]
+    fwd, smoothed = forward_nav[last], run.nav[rows]
+    P_f, P_s = forward_P[last], run.ep_Pp[last][:, :layout.ATT + 3, :layout.ATT + 3]
+    ok = np.isfinite(fwd[:, layout.X_LAT]) & np.isfinite(smoothed[:, layout.X_LAT])
+    fwd, smoothed, P_f, P_s, rows = fwd[ok], smoothed[ok], P_f[ok], P_s[ok], rows[ok]
+    lat, lon = smoothed[:, layout.X_LAT], smoothed[:, layout.X_LON]
+    r_f = geodetic_to_ecef(fwd[:, layout.X_LAT], fwd[:, layout.X_LON], fwd[:, layout.X_HGT])
+    r_s = geodetic_to_ecef(lat, lon, smoothed[:, layout.X_HGT])
+    position = np.einsum("nij,nj->ni", C_e_n(lat, lon), r_f - r_s)
+    angles_f = np.stack(dcm_to_euler(quat_to_dcm(fwd[:, layout.X_QUAT:layout.X_QUAT + 4])), -1)
+    angles_s = np.stack(dcm_to_euler(quat_to_dcm(smoothed[:, layout.X_QUAT:layout.X_QUAT + 4])), -1)
+    attitude = angles_f - angles_s
+    attitude[:, 2] = wrap_pi(attitude[:, 2])
+    pos = slice(layout.POS, layout.POS + 3)
+    att = slice(layout.ATT, layout.ATT + 3)
+
+    def euler_sigma(P: np.ndarray, angles: np.ndarray) -> np.ndarray:
+        """1-sigma of roll, pitch, yaw [rad] of a NED attitude-error covariance, linearised at ``angles``."""
+        J = euler_error_jacobian(angles[:, 0], angles[:, 1], angles[:, 2])
+        return np.sqrt(np.maximum(np.diagonal(J @ P @ np.swapaxes(J, -1, -2), axis1=1, axis2=2), 0.0))
+
+    return ForwardSeparation(
+        time=t[rows], position=position, attitude=attitude,
+        position_sigma=np.sqrt(np.maximum(np.diagonal(P_f[:, pos, pos] - P_s[:, pos, pos], axis1=1, axis2=2), 0.0)),
+        attitude_sigma=euler_sigma(P_f[:, att, att] - P_s[:, att, att], angles_s),
+        forward_position_sigma=np.sqrt(np.maximum(np.diagonal(P_f[:, pos, pos], axis1=1, axis2=2), 0.0)),
+        forward_attitude_sigma=euler_sigma(P_f[:, att, att], angles_f))
 
 
 def _calibration(run: _Pass) -> Calibration:
@@ -986,7 +1031,7 @@ def solve_ins(inputs: InsInputs, cfg: ProcessingConfig, smooth: bool = True) -> 
         roll=angles[:, 0], pitch=angles[:, 1], yaw=angles[:, 2], pos_var_n=pos_var, att_sigma=att_sigma, valid=valid,
         gnss=GnssUse(time=gnss.time, status=full_status, innovation=full_innov, innovation_var=full_var,
                      line=gnss.line, nis=full_nis),
-        info=info, att_cov_n=att_cov, diagnostics=diagnostics,
+        info=info, att_cov_n=att_cov, diagnostics=diagnostics, forward=forward_separation(t, final),
     )
 
 

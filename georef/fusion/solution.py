@@ -38,6 +38,29 @@ class GnssUse:
 
 
 @dataclass
+class ForwardSeparation:
+    """The forward filter's solution against the smoothed one, at the filter's covariance epochs.
+
+    ``time`` [s] (E,); ``position`` forward minus smoothed IMU position, NED at the smoothed point [m] (E, 3);
+    ``attitude`` forward minus smoothed ZYX roll, pitch, yaw [rad] (E, 3), yaw wrapped to (-pi, pi];
+    ``position_sigma`` and ``attitude_sigma`` the 1-sigma of that difference the filter expects,
+    ``sqrt(P_forward - P_smoothed)`` per component (for a Rauch-Tung-Striebel smoother the smoothed error is
+    uncorrelated with the difference, so the difference's covariance is the difference of the covariances)
+    [m], [rad]; ``forward_position_sigma`` and ``forward_attitude_sigma`` the forward filter's own 1-sigma.
+    POSPac and Inertial Explorer users look at this first: a separation far outside its sigma marks a stretch
+    where the forward filter and the smoother disagree (a bad fix, a mis-modelled outage).
+    """
+
+    time: np.ndarray
+    position: np.ndarray
+    attitude: np.ndarray
+    position_sigma: np.ndarray
+    attitude_sigma: np.ndarray
+    forward_position_sigma: np.ndarray
+    forward_attitude_sigma: np.ndarray
+
+
+@dataclass
 class NavSolution:
     """IMU navigation at the POS rows, SI units.
 
@@ -66,6 +89,8 @@ class NavSolution:
     att_cov_n: np.ndarray | None = None
     #: how a full-state solution was reached (georef.fusion.ins.InsDiagnostics); None for other methods
     diagnostics: Any = None
+    #: the forward filter against the smoothed solution (``--method rts``); None when nothing was smoothed
+    forward: ForwardSeparation | None = None
 
     @property
     def v_n(self) -> np.ndarray:

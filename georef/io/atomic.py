@@ -1,35 +1,352 @@
-"""Atomic file output: write to a temporary file beside the target, then rename over it."""
+"""Safe file output: write a temporary file beside the target, then rename it over the target.
+
+Guarantees (``docs/report.md``, section "Safe output"):
+
+* **Complete or absent.** The target is either the previous file or the complete new one, never part of it; a
+  failure (an exception, a full disk, SIGINT, SIGTERM, SIGHUP) removes the temporary file and leaves the target
+  as it was.
+* **Only regular files are replaced.** A target that exists and is not a regular file (a device such as
+  ``/dev/null`` or ``/dev/full``, a FIFO, a socket, a directory) is refused with :class:`OutputError` before
+  anything is written: the rename would replace the device node itself. A symbolic link is followed: the file it
+  points to is replaced and the link kept.
+* **Write protection is kept.** A target without any write permission bit (e.g. mode 0444), or one this user
+  may not write, is refused with :class:`OutputError`, also for root. An existing target keeps its permission
+  bits; a new one gets ``0666 & ~umask``.
+* **No litter.** Temporary files are named ``.NAME.XXXXXXXX.tmp`` (``XXXXXXXX``: 8 random characters) and held
+  under an exclusive ``flock`` while written. SIGKILL cannot be caught, so every write first removes the stale
+  temporary files of its own target: those of our naming, older than :data:`STALE_AFTER_S` and not locked (their
+  writer is gone: the kernel drops a dead process's locks).
+* **All or nothing for a set.** Inside ``with atomic_group():`` every :func:`atomic_write` keeps its finished
+  temporary file until the group ends; only when every write succeeded are they renamed onto their targets, and
+  on any failure all of them are removed and no target changes. Renames within one directory of one file
+  system do not allocate data blocks, so a full disk fails the writes, before any rename.
+
+>>> with atomic_group():
+...     write_export(table, "eo.csv", "csv")   # uses atomic_write
+...     write_report(result, "report.html")    # if this fails, eo.csv is not written either
+"""
 
 from __future__ import annotations
 
 import contextlib
+import contextvars
+import errno
 import os
+import re
+import signal
+import stat
 import tempfile
+import threading
+import time
 from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
+
+from georef.io.errors import GeorefError
+
+try:  # POSIX; elsewhere stale files are never removed (no way to tell a live writer's file from a dead one's)
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None  # type: ignore[assignment]
+
+#: a temporary file of ours older than this [s] and not locked is stale (its writer was killed)
+STALE_AFTER_S = 300.0
+#: signals whose default action ends the process: while a temporary file exists, they remove it first
+CLEANUP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+_KIND = ((stat.S_ISDIR, "a directory"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+         (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISSOCK, "a socket"))
+
+
+@dataclass
+class OutputError(GeorefError):
+    """An output that cannot or must not be written: the path and why (the CLI prints it, exit code 2)."""
+
+    path: Path | str
+    message: str
+
+    def __post_init__(self) -> None:
+        super().__init__(str(self))
+
+    def __str__(self) -> str:
+        return f"{self.path}: {self.message}"
+
+
+def _temp_pattern(name: str) -> re.Pattern[str]:
+    """The names :func:`tempfile.mkstemp` gives our temporary files of target ``name``."""
+    return re.compile(rf"\.{re.escape(name)}\.[A-Za-z0-9_]{{8}}\.tmp")
+
+
+def resolve_target(path: Path | str) -> Path:
+    """The file an output to ``path`` replaces (a symbolic link followed), after checking that it may be replaced.
+
+    Raises :class:`OutputError` for an existing target that is not a regular file, or that is write-protected.
+    """
+    path = Path(path)
+    if path.is_symlink():
+        path = Path(os.path.realpath(path))
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return path
+    except OSError as exc:
+        raise OutputError(path, f"cannot check the output: {exc.strerror}") from None
+    for test, kind in _KIND:
+        if test(st.st_mode):
+            raise OutputError(path, f"is {kind}, not a regular file; georef writes an output as a new file renamed "
+                                    "over the target, which would replace it. Give the path of a file.")
+    if not stat.S_ISREG(st.st_mode):  # pragma: no cover - every other kind is listed above
+        raise OutputError(path, "is not a regular file; give the path of a file")
+    if not st.st_mode & 0o222 or not os.access(path, os.W_OK):
+        raise OutputError(path, f"is write-protected (mode {stat.S_IMODE(st.st_mode):04o}); georef does not replace "
+                                "it. Remove it, make it writable (chmod u+w) or write elsewhere.")
+    return path
+
+
+def remove_stale_temps(path: Path | str, older_than: float = STALE_AFTER_S) -> list[Path]:
+    """Remove the temporary files of ours for target ``path`` left by killed writers; returns those removed.
+
+    Only files named ``.NAME.XXXXXXXX.tmp`` that are regular, older than ``older_than`` [s] and not locked by a
+    live writer are removed (nothing, where ``flock`` is unavailable or unsupported by the file system)."""
+    path = Path(path)
+    if fcntl is None:  # pragma: no cover - Windows
+        return []
+    pattern = _temp_pattern(path.name)
+    removed = []
+    now = time.time()
+    try:
+        names = os.listdir(path.parent)
+    except OSError:
+        return []
+    for name in names:
+        if not pattern.fullmatch(name):
+            continue
+        candidate = path.parent / name
+        try:
+            fd = os.open(candidate, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
+        except OSError:
+            continue
+        try:
+            st = os.fstat(fd)
+            if not stat.S_ISREG(st.st_mode) or now - st.st_mtime < older_than:
+                continue
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                continue  # a live writer holds it (or the file system has no locks: keep it)
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(candidate)
+                removed.append(candidate)
+        finally:
+            os.close(fd)
+    return removed
+
+
+# ---- temporary files alive in this process, removed by the signal handler ----------------------------------
+_live: set[str] = set()
+_live_lock = threading.Lock()
+_previous_handlers: dict[int, object] = {}
+
+
+def _on_signal(signum: int, frame: object) -> None:
+    """Remove every live temporary file, then let the signal do what it did before we installed this."""
+    with _live_lock:
+        names = list(_live)
+        _live.clear()
+    for name in names:
+        with contextlib.suppress(OSError):
+            os.unlink(name)
+    previous = _previous_handlers.get(signum, signal.SIG_DFL)
+    if callable(previous):
+        previous(signum, frame)
+        return
+    if previous == signal.SIG_IGN:
+        return
+    # the default action (terminate): restore it and send the signal again
+    _restore_handlers()
+    os.kill(os.getpid(), signum)
+
+
+def _install_handlers() -> None:
+    if threading.current_thread() is not threading.main_thread() or _previous_handlers:
+        return
+    for signum in CLEANUP_SIGNALS:
+        with contextlib.suppress(ValueError, OSError):
+            previous = signal.getsignal(signum)
+            if previous is signal.SIG_IGN or previous is None:
+                continue  # ignored, or set from C: leave it alone
+            _previous_handlers[signum] = previous
+            signal.signal(signum, _on_signal)
+
+
+def _restore_handlers() -> None:
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for signum, previous in list(_previous_handlers.items()):
+        with contextlib.suppress(ValueError, OSError, TypeError):
+            signal.signal(signum, previous)  # type: ignore[arg-type]
+        del _previous_handlers[signum]
+
+
+def _register(name: str) -> None:
+    with _live_lock:
+        _live.add(name)
+    _install_handlers()
+
+
+def _unregister(name: str) -> None:
+    with _live_lock:
+        _live.discard(name)
+        empty = not _live
+    if empty:
+        _restore_handlers()
+
+
+def _discard(name: str) -> None:
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(name)
+    _unregister(name)
+
+
+# ---- groups -------------------------------------------------------------------------------------------------
+@dataclass
+class _Pending:
+    tmp: str
+    target: Path
+    fd: int                       # kept open to hold the lock until the rename
+
+
+@dataclass
+class _Group:
+    pending: list[_Pending] = field(default_factory=list)
+
+
+_group: contextvars.ContextVar[_Group | None] = contextvars.ContextVar("georef_atomic_group", default=None)
+
+
+def _commit(item: _Pending) -> None:
+    try:
+        os.replace(item.tmp, item.target)
+    except OSError as exc:
+        _discard(item.tmp)
+        raise OutputError(item.target, f"could not write it: {exc.strerror or exc}") from None
+    finally:
+        with contextlib.suppress(OSError):
+            os.close(item.fd)
+    _unregister(item.tmp)
+    with contextlib.suppress(OSError):  # the rename itself durable
+        dir_fd = os.open(item.target.parent, os.O_RDONLY)
+        try:
+            os.fsync(dir_fd)
+        finally:
+            os.close(dir_fd)
+
+
+@contextlib.contextmanager
+def atomic_group() -> Iterator[None]:
+    """Write several outputs all-or-nothing: :func:`atomic_write` calls inside defer their renames to the end.
+
+    On leaving without an exception every target is checked again and then replaced; on an exception (or a
+    refused target) every temporary file is removed and no target changes. A group inside a group joins it."""
+    if _group.get() is not None:
+        yield
+        return
+    group = _Group()
+    token = _group.set(group)
+    try:
+        yield
+        for item in group.pending:
+            if resolve_target(item.target) != item.target:  # pragma: no cover - replaced by a link meanwhile
+                raise OutputError(item.target, "changed while it was being written")
+    except BaseException:
+        for item in group.pending:
+            with contextlib.suppress(OSError):
+                os.close(item.fd)
+            _discard(item.tmp)
+        raise
+    finally:
+        _group.reset(token)
+    for k, item in enumerate(group.pending):
+        try:
+            _commit(item)
+        except BaseException:
+            for rest in group.pending[k + 1:]:
+                with contextlib.suppress(OSError):
+                    os.close(rest.fd)
+                _discard(rest.tmp)
+            raise
+
+
+def _umask() -> int:
+    """The process's umask, read without changing it where the system tells it (Linux); else set and restored."""
+    with contextlib.suppress(OSError, ValueError):
+        with open("/proc/self/status", encoding="ascii") as status:
+            for line in status:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    umask = os.umask(0o077)  # briefly: another thread creating a file meanwhile gets the stricter mask
+    os.umask(umask)
+    return umask
+
+
+def _mode_for(target: Path) -> int:
+    """The permission bits the output gets: an existing target's own, else ``0666 & ~umask``."""
+    try:
+        return stat.S_IMODE(os.stat(target).st_mode) & 0o777
+    except FileNotFoundError:
+        return 0o666 & ~_umask()
 
 
 @contextlib.contextmanager
 def atomic_write(path: Path | str, mode: str = "w", encoding: str | None = "utf-8") -> Iterator[IO]:
     """Open a temporary file in the target's folder; on success it replaces ``path`` in one rename.
 
-    A crash or exception inside the block leaves any previous ``path`` untouched and no partial file.
+    A failure inside the block (or while flushing) leaves any previous ``path`` untouched and no temporary file;
+    an ``OSError`` while writing (a full disk) is raised as :class:`OutputError` naming ``path``. Refused
+    targets: see :func:`resolve_target`. Inside :func:`atomic_group` the rename waits for the group's end.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    target = resolve_target(path)
     try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(target, f"cannot create its folder: {exc.strerror or exc}") from None
+    remove_stale_temps(target)
+    final_mode = _mode_for(target)
+    try:
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    except OSError as exc:
+        raise OutputError(target, f"cannot write in its folder: {exc.strerror or exc}") from None
+    _register(tmp_name)
+    lock_fd = -1
+    try:
+        lock_fd = os.dup(fd)
+        if fcntl is not None:
+            with contextlib.suppress(OSError):
+                fcntl.flock(lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         text = "b" not in mode
-        with os.fdopen(fd, mode, encoding=encoding if text else None, newline="" if text else None) as handle:
-            yield handle
-            handle.flush()
-            os.fsync(handle.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp_name, 0o666 & ~umask)
-        os.replace(tmp_name, path)
+        try:
+            with os.fdopen(fd, mode, encoding=encoding if text else None, newline="" if text else None) as handle:
+                yield handle
+                handle.flush()
+                os.fsync(handle.fileno())
+            os.chmod(tmp_name, final_mode)
+        except OSError as exc:
+            if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EROFS):
+                raise OutputError(target, f"could not write it: {exc.strerror} (errno {exc.errno}); nothing was "
+                                          "written and any previous file is unchanged") from None
+            raise
+        group = _group.get()
+        if group is not None:
+            group.pending.append(_Pending(tmp=tmp_name, target=target, fd=lock_fd))
+            lock_fd = -1
+            return
+        item = _Pending(tmp=tmp_name, target=target, fd=lock_fd)
+        lock_fd = -1
+        _commit(item)
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp_name)
+        if lock_fd >= 0:
+            with contextlib.suppress(OSError):
+                os.close(lock_fd)
+        _discard(tmp_name)
         raise
