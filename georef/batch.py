@@ -4,8 +4,10 @@ Input: a folder of flight folders (each with ``POS.txt``, ``Kamera.txt`` or a ra
 ``flight.toml``), or a manifest CSV with columns ``flight, pos, camera[, config]`` (paths relative to the
 manifest). Each flight is one task: by default on a ``LocalCluster`` of worker processes on this machine, or
 on an existing cluster given by its scheduler address. A failed flight is reported with its reason and the
-others go on. Every flight gets ``<out>/<flight>/eo.csv`` and ``<out>/<flight>/georef.log``; the batch writes
-``<out>/batch_summary.csv``.
+others go on. Every flight gets ``<out>/<flight>/eo.csv``, the exports asked for (``exports``: formats and file
+names, :func:`georef.io.exports.parse_folder_export`, written with the table all-or-nothing) and
+``<out>/<flight>/georef.log``; the batch writes ``<out>/batch_summary.csv``. A flight's CRS, heights and image
+names come from its own ``flight.toml``.
 
 Each flight's quality checks (:mod:`georef.qc`) run on the worker and come back as plain text in the row:
 ``qc`` is ``"passed"`` or ``"failed: <check names>"`` (empty when the flight did not run), ``qc_details`` the
@@ -81,10 +83,14 @@ def discover(source: Path | str) -> list[FlightJob]:
     return jobs
 
 
-def process_flight(job: FlightJob, output_root: str, method: str | None = None) -> dict:
-    """Process one flight (runs on a worker); never raises: failures come back as a status row."""
+def process_flight(job: FlightJob, output_root: str, method: str | None = None,
+                   exports: tuple[tuple[str, str], ...] = ()) -> dict:
+    """Process one flight (runs on a worker); never raises: failures come back as a status row. ``exports``:
+    (format, file name) pairs written beside ``eo.csv`` in the flight's folder."""
     from georef.config import ProcessingConfig, load_config
-    from georef.io.eo_table import write_eo_csv
+    from georef.frames.heights import OutputFrames
+    from georef.io.atomic import atomic_group
+    from georef.io.exports import ExportSpec, check_exports, write_export
     from georef.pipeline import process
     from georef.qc import assess_result
 
@@ -98,9 +104,16 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None) 
         cfg = load_config(job.config) if job.config else ProcessingConfig()
         if method:
             cfg = cfg.updated(method=method)
+        specs = [ExportSpec("csv", out / "eo.csv"), *(ExportSpec(fmt, out / name) for fmt, name in exports)]
+        frames = (OutputFrames(cfg.crs, cfg.height, cfg.vertical_crs)
+                  if cfg.crs or cfg.height != "ellipsoidal" else None)
+        check_exports(specs, frames)  # a format that needs this flight's CRS fails before processing
         result = process(job.pos, job.camera, cfg)
-        write_eo_csv(result.table, out / "eo.csv")
-        row["outputs"].append({"what": "table", "format": "csv", "path": str(out / "eo.csv")})
+        with atomic_group():
+            for spec in specs:
+                write_export(result.table, spec.path, spec.fmt, frames=result.frames, odm_angles=cfg.odm_angles)
+        row["outputs"] += [{"what": "table" if k == 0 else "export", "format": spec.fmt, "path": str(spec.path)}
+                           for k, spec in enumerate(specs)]
         summary = result.summary()
         gnss = result.nav.gnss
         used = gnss.status >= 1
@@ -167,8 +180,10 @@ def start_local_cluster(workers: int = 2, tuned: bool = True):
 
 def run_batch(jobs: list[FlightJob], output_root: Path | str, method: str | None = None,
               scheduler: str | None = None, workers: int = 2,
-              on_done: Callable[[dict], None] | None = None) -> pd.DataFrame:
-    """Process every job on Dask distributed; returns (and writes) the summary table.
+              on_done: Callable[[dict], None] | None = None,
+              exports: tuple[tuple[str, str], ...] = ()) -> pd.DataFrame:
+    """Process every job on Dask distributed; returns (and writes) the summary table. ``exports``: (format, file
+    name) pairs every flight writes beside its ``eo.csv``.
 
     ``scheduler`` is an address such as ``tcp://host:8786``; without it a ``LocalCluster`` of ``workers``
     single-threaded processes is started (:func:`start_local_cluster`) and closed here.
@@ -185,8 +200,8 @@ def run_batch(jobs: list[FlightJob], output_root: Path | str, method: str | None
         client = Client(scheduler)
     rows = []
     try:
-        futures = [client.submit(process_flight, job, str(output_root), method, key=f"flight-{job.flight}",
-                                 pure=False) for job in jobs]
+        futures = [client.submit(process_flight, job, str(output_root), method, tuple(exports),
+                                 key=f"flight-{job.flight}", pure=False) for job in jobs]
         for future in as_completed(futures):
             try:
                 row = future.result()

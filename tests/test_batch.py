@@ -104,3 +104,37 @@ def test_a_batch_where_every_flight_failed_to_run_exits_2(flights, tmp_path):
     result = CliRunner().invoke(app, ["batch", str(manifest), "-o", str(tmp_path / "out"), "--workers", "1", "-q"])
     assert result.exit_code == 2, result.output
     assert "failed: broken" in result.output and "QC failed" not in result.output
+
+
+def test_batch_writes_each_flights_exports(tmp_path):
+    """``--export`` in a batch: every flight's folder gets the files, with the flight's own CRS; a flight whose
+    configuration lacks the CRS a format needs fails on its input before it is processed, and writes nothing."""
+    from georef.batch import FlightJob, process_flight
+    from georef.io.exports import parse_folder_export
+
+    flight = simulate(SimConfig(seed=4, plan=FlightPlan(duration_s=60.0)))
+    with_crs = write_flight(flight, tmp_path / "with_crs", crs="EPSG:3765")
+    without = write_flight(flight, tmp_path / "without_crs")
+    exports = tuple((spec.fmt, str(spec.path)) for spec in map(parse_folder_export, ["metashape", "kml:st.kml"]))
+    out = tmp_path / "out"
+    row = process_flight(FlightJob("with_crs", str(with_crs["POS.txt"]), str(with_crs["Kamera.txt"]),
+                                   str(with_crs["flight.toml"])), str(out), exports=exports)
+    assert row["status"] == "ok", row["message"]
+    table = pd.read_csv(out / "with_crs" / "eo.csv")
+    metashape = pd.read_csv(out / "with_crs" / "metashape.csv", comment="#", header=None)
+    assert len(metashape) == table["lat"].notna().sum() > 0
+    assert metashape[1].to_numpy() == pytest.approx(table.loc[table["lat"].notna(), "easting"].to_numpy(), abs=1e-3)
+    assert (out / "with_crs" / "st.kml").read_text().count("<Placemark>") == len(metashape)
+    assert {o["path"] for o in row["outputs"]} >= {str(out / "with_crs" / n) for n in ("eo.csv", "metashape.csv",
+                                                                                      "st.kml")}
+    row = process_flight(FlightJob("without_crs", str(without["POS.txt"]), str(without["Kamera.txt"]),
+                                   str(without["flight.toml"])), str(out), exports=exports)
+    assert row["status"] == "failed" and row["failure"] == "input" and "crs" in row["message"].lower()
+    assert sorted(p.name for p in (out / "without_crs").iterdir()) == ["georef.log"]
+
+
+@pytest.mark.parametrize("text", ["nonsense", "metashape:../ms.csv", "sub/stations.kml"])
+def test_batch_refuses_a_bad_export_before_any_flight(flights, tmp_path, text):
+    result = CliRunner().invoke(app, ["batch", str(flights), "-o", str(tmp_path / "out"), "--export", text, "-q"])
+    assert result.exit_code == 2, result.output
+    assert not (tmp_path / "out").exists()

@@ -621,6 +621,11 @@ def batch(
     scheduler: Annotated[str | None, typer.Option(help="Dask scheduler address, e.g. tcp://host:8786; default: a "
                                                        "LocalCluster on this machine.")] = None,
     workers: Annotated[int, typer.Option(help="LocalCluster worker processes (one thread each).")] = 2,
+    export: Annotated[list[str] | None, typer.Option(
+        "--export", help="Also write, in every flight's folder, FORMAT (metashape, pix4d, odm, parge, geojson, kml; "
+                         "default file names metashape.csv, pix4d.csv, geo.txt, parge.txt, stations.geojson, "
+                         "stations.kml) or FORMAT:NAME; repeatable. CRS, heights and image names come from each "
+                         "flight's flight.toml.")] = None,
     quiet: Quiet = False,
     summary_json: SummaryJson = None,
 ) -> None:
@@ -635,12 +640,17 @@ def batch(
     from .summary import batch_document, batch_exit_code
 
     _not_stdout(output, "-o", "batch writes a folder of files")
+    from georef.io.exports import parse_folder_export
+
+    specs = [parse_folder_export(text) for text in export or []]  # checked before any flight runs
+    exports = tuple((spec.fmt, str(spec.path)) for spec in specs)
     jobs = discover(source)
     rows: list[dict] = []
-    settings = {"method": plain(method), "scheduler": scheduler, "workers": workers}
+    settings = {"method": plain(method), "scheduler": scheduler, "workers": workers,
+                "exports": [f"{fmt}:{name}" for fmt, name in exports]}
     if quiet:
         summary = run_batch(jobs, output, method=plain(method), scheduler=scheduler, workers=workers,
-                            on_done=rows.append)
+                            on_done=rows.append, exports=exports)
     else:
         progress = Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
                             TextColumn("{task.completed}/{task.total} flights"), TimeElapsedColumn(),
@@ -654,7 +664,7 @@ def batch(
                 progress.update(task, description=f"{escape(str(row['flight']))}: {escape(str(row['status']))}")
 
             summary = run_batch(jobs, output, method=plain(method), scheduler=scheduler, workers=workers,
-                                on_done=done)
+                                on_done=done, exports=exports)
     order = {job.flight: i for i, job in enumerate(jobs)}
     rows.sort(key=lambda row: order.get(row["flight"], len(order)))
     code = batch_exit_code(rows, EXIT_USER_ERROR, EXIT_INTERNAL_ERROR, EXIT_QC_FAILED)

@@ -77,6 +77,23 @@ def format_of(path: Path | str, fmt: str | None = None) -> str:
                       f"geo.txt); write FORMAT:PATH with FORMAT one of {', '.join(FORMATS)}")
 
 
+#: the file each format gets in a folder of outputs (``georef batch --export FORMAT``)
+DEFAULT_FILE_NAMES = {"csv": "eo.csv", "metashape": "metashape.csv", "pix4d": "pix4d.csv", "odm": "geo.txt",
+                      "parge": "parge.txt", "geojson": "stations.geojson", "kml": "stations.kml"}
+
+
+def parse_folder_export(text: str) -> ExportSpec:
+    """An export of ``georef batch``, relative to each flight's output folder: ``FORMAT`` (its default file name,
+    :data:`DEFAULT_FILE_NAMES`), ``FORMAT:NAME`` or ``NAME`` with an extension that names the format. ``NAME`` is
+    a plain file name: a flight's outputs stay in its own folder."""
+    if text in FORMATS:
+        return ExportSpec(text, Path(DEFAULT_FILE_NAMES[text]))
+    spec = parse_export(text)
+    if spec.path.name != str(spec.path) or spec.path.name in ("", ".", ".."):
+        raise ExportError(f"--export {text!r}: give a plain file name; each flight's files go in its own folder")
+    return spec
+
+
 def parse_export(text: str) -> ExportSpec:
     """``FORMAT:PATH`` (``metashape:ms.csv``) or a path whose extension names the format (``stations.kml``)."""
     head, sep, tail = text.partition(":")
