@@ -246,14 +246,16 @@ def check_time_jumps(path: object, times: np.ndarray, lines: np.ndarray, counter
     return notices
 
 
-def check_gnss_time_consistency(path: object, gnss: GnssEpochs, time_column: str, period: float | None) -> None:
+def check_gnss_time_consistency(path: object, times: np.ndarray, lines: np.ndarray, gnss: GnssEpochs, time_column: str,
+                                period: float | None) -> None:
     """Raise :class:`InputError` where the POS time jumps but the GNSS positions go on as if it had not.
 
     Across a real gap of ``dt`` seconds an aircraft moving at ``v`` covers about ``v dt``. When the first fix
     after a gap of more than 3 fix periods lies where the last fixes predict it one fix *period* later
     (within 25 % of a period's travel + 3 m) while moving at more than 5 m/s, the time stamps jumped and the
-    aircraft did not: e.g. TRIG_TIME raised by 100000 from one line on. ``period`` [s]: the GNSS fix period
-    (the median fix spacing when None).
+    aircraft did not: e.g. TRIG_TIME raised by 100000 from one line on. The error names the POS row (``times``
+    [s], file ``lines``) with the longest step between the two fixes. ``period`` [s]: the GNSS fix period (the
+    median fix spacing when None).
     """
     if len(gnss) < 3:
         return
@@ -274,7 +276,9 @@ def check_gnss_time_consistency(path: object, gnss: GnssEpochs, time_column: str
         miss = float(np.linalg.norm(r[k + 1] - predicted))
         moved = float(np.linalg.norm(r[k + 1] - r[k]))
         if miss < 0.25 * speed * nominal + 3.0 and moved * 10.0 < speed * step[k]:
-            raise InputError(path, int(gnss.line[k + 1]), time_column,
-                             f"the time jumps by {step[k]:.1f} s before this line, but the GNSS position moved "
-                             f"on by {moved:.0f} m at {speed:.0f} m/s, as after one fix period ({nominal:g} s): "
-                             "the time stamps are wrong from here on")
+            first, last = np.searchsorted(lines, [gnss.line[k], gnss.line[k + 1]])
+            row = int(first + np.argmax(np.diff(times[first:last + 1]))) + 1 if last > first else int(last)
+            raise InputError(path, int(lines[min(row, len(lines) - 1)]), time_column,
+                             f"the time jumps forward by {times[row] - times[row - 1]:.1f} s on this line, but the "
+                             f"GNSS position moved on by {moved:.0f} m at {speed:.0f} m/s, as after one fix period "
+                             f"({nominal:g} s): the time stamps are wrong from here on")

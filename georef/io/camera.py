@@ -105,7 +105,8 @@ def _incomplete(path: Path, table: Table, names: Mapping[str, str], frame: np.nd
                              "the line is cut short and has no frame id")
         missing = [table.names.get(name, name) for name in order
                    if table.header.index(table.names.get(name, name)) >= table.fields[row]]
-        problem[row] = f"{FLAG_INCOMPLETE} ({', '.join(missing)} missing): not georeferenced"
+        problem[row] = (f"{FLAG_INCOMPLETE} (line {int(table.lines[row])}: {', '.join(missing)} missing): "
+                        "not georeferenced")
     notices.append(InputNotice(path, table.lines[rows].tolist(), None,
                                f"{len(rows)} line(s) cut short (fewer fields than the header): each kept as a "
                                "flagged row without a time"))

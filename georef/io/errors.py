@@ -17,7 +17,8 @@ def excerpt(text: object, limit: int = EXCERPT_CHARS) -> str:
     text = str(text)
     if len(text) <= limit:
         return repr(text)
-    return f"{text[:limit]!r}… ({len(text)} characters)"
+    more = "over " if text.endswith("…") else ""
+    return f"{text[:limit]!r}… ({more}{len(text.rstrip('…'))} characters)"
 
 
 class GeorefError(Exception):

@@ -35,8 +35,9 @@ class Limit:
     why: str
 
 
-_FORCE = Limit(-490.0, 490.0, "m/s^2", "50 g: beyond the full-scale range of any navigation IMU's accelerometers")
-_RATE = Limit(-2000.0, 2000.0, "deg/s", "beyond the full-scale range of any navigation IMU's gyros (MEMS: 2000 deg/s)")
+_FORCE = Limit(-490.0, 490.0, "m/s^2", "50 g, beyond the full-scale range of any navigation IMU's accelerometers")
+_RATE = Limit(-2000.0, 2000.0, "deg/s", "beyond the full-scale range of any navigation IMU's gyros, 2000 deg/s for "
+              "the widest MEMS ones")
 _TEMPERATURE = Limit(-80.0, 150.0, "degC", "beyond the operating range of any electronics")
 
 #: role -> plausible interval. Roles as in :data:`georef.io.pos.POS_ROLES`; units the file's.

@@ -180,7 +180,7 @@ def read_pos(
                                ground_speed=data.get("gnss_speed"))
     gnss_columns = f"{spelled['lat']}/{spelled['lon']}/{spelled['alt']}"
     gnss, jump_notices = check_gnss_jumps(path, gnss, gnss_columns)
-    check_gnss_time_consistency(path, gnss, time_column, 1.0 / gnss_rate_hz if gnss_rate_hz else None)
+    check_gnss_time_consistency(path, times, lines, gnss, time_column, 1.0 / gnss_rate_hz if gnss_rate_hz else None)
     notices.extend(gnss.notices)
     notices.extend(jump_notices)
     return PosLog(path=path, time=times, data=data, lines=lines, gnss=gnss, time_repairs=repairs,

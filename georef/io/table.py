@@ -501,38 +501,33 @@ def _nth_separator(text: bytes, sep: str | None, n: int) -> int | None:
     return len(sep.join(parts[:n]).encode()) + 1 if len(parts) > n else None
 
 
-def _line_at(handle: BinaryIO, offset: int) -> str:
-    """The text of the line starting at byte ``offset`` (at most :data:`_LINE_PEEK` bytes)."""
+def _line_at(handle: BinaryIO, offset: int, limit: int = _LINE_PEEK) -> tuple[str, bool]:
+    """The text of the line starting at byte ``offset`` (at most ``limit`` bytes) and whether it is whole."""
     handle.seek(offset)
-    data = handle.read(_LINE_PEEK)
+    data = handle.read(limit + 1)
     end = data.find(b"\n")
-    return (data if end < 0 else data[:end]).rstrip(b"\r").decode("utf-8", errors="replace")
+    whole = end >= 0 or len(data) <= limit
+    data = data[:end] if end >= 0 else data[:limit]
+    return data.rstrip(b"\r").decode("utf-8", errors="replace"), whole
 
 
-def _line_number_text(handle: BinaryIO, start: int, first_line: int, wanted: int) -> str:
-    """The text of file line ``wanted``, counting from byte ``start`` (line ``first_line``)."""
+def _line_offset(handle: BinaryIO, start: int, first_line: int, wanted: int) -> int | None:
+    """Byte offset of file line ``wanted``, counting from byte ``start`` (which begins line ``first_line``)."""
     handle.seek(start)
-    line = first_line
-    carry = b""
-    while True:
-        block = handle.read(1 << 20)
-        if not block:
-            return _line_at(io.BytesIO(carry), 0) if line == wanted else ""
-        data = carry + block
-        position = 0
-        while line < wanted:
-            found = data.find(b"\n", position)
-            if found < 0:
-                break
-            line += 1
-            position = found + 1
-        if line == wanted:
-            end = data.find(b"\n", position)
-            if end >= 0 or len(data) - position > _LINE_PEEK:
-                return _line_at(io.BytesIO(data[position:]), 0)
-            carry = data[position:]
-        else:
-            carry = b""
+    line, position = first_line, start
+    if line == wanted:
+        return start
+    while block := handle.read(1 << 20):
+        if line + block.count(b"\n") >= wanted:
+            k = 0
+            while (found := block.find(b"\n", k)) >= 0:
+                line += 1
+                if line == wanted:
+                    return position + found + 1
+                k = found + 1
+        line += block.count(b"\n")
+        position += len(block)
+    return None
 
 
 # --------------------------------------------------------------------------------------------------- cells
@@ -548,7 +543,7 @@ def _cell_problem(text: str, kind: Kind, sep: str | None) -> str:
     if stripped.lower().lstrip("+-") in ("inf", "infinity", "nan"):
         hints.append("not a finite number")
     elif kind != "hex" and re.fullmatch(_FLOAT_TEXT, text) and not np.isfinite(float(stripped)):
-        hints.append("not a finite number (the exponent overflows)")
+        hints.append("too large: not a finite number")
     if any(ch.isdigit() and not ch.isascii() for ch in text):
         hints.append("digits must be ASCII 0-9")
     elif not text.isascii():
@@ -776,7 +771,7 @@ def _read_body(layout: _Layout, wanted: dict[str, Kind], short_rows: str) -> Tab
     incomplete = np.zeros(len(frame), dtype=bool)
     n_fields = np.zeros(len(frame), dtype=int)
     for line, fields, start in scanner.short:
-        text = _line_at(layout.handle, start)
+        text, _ = _line_at(layout.handle, start)
         other = [s for s in (*SEPARATORS, None) if s != sep and len(_split(text, s)) == len(header)]
         missing_column = _field_name(header, fields)
         if other:
@@ -822,8 +817,12 @@ def _read_body(layout: _Layout, wanted: dict[str, Kind], short_rows: str) -> Tab
             if infinite.any():
                 row = int(np.argmax(infinite))
                 line = int(lines[rows[row]])
-                text = _split(_line_number_text(layout.handle, layout.data_start, 2, line), sep)
-                cell = text[index[name]] if index[name] < len(text) else str(values[row])
+                offset = _line_offset(layout.handle, layout.data_start, 2, line)
+                text, whole = _line_at(layout.handle, offset, 1 << 20) if offset is not None else ("", True)
+                fields = _split(text, sep)
+                cell = fields[index[name]] if index[name] < len(fields) else str(values[row])
+                if not whole and index[name] >= len(fields) - 1:
+                    cell += "…"  # cut at 1 MiB: the excerpt says "more than"
                 raise InputError(path, line, spelled, _cell_problem(cell, kind, sep))
             if kind == "int":
                 with np.errstate(invalid="ignore"):
