@@ -96,6 +96,13 @@ class GnssEpochs:
     def __len__(self) -> int:
         return len(self.time)
 
+    def without(self, drop: np.ndarray) -> GnssEpochs:
+        """A copy without the fixes where the boolean mask ``drop`` is True (notices kept)."""
+        keep = ~np.asarray(drop, dtype=bool)
+        sigma = None if self.sigma_neu is None else self.sigma_neu[keep]
+        return GnssEpochs(self.time[keep], self.lat_deg[keep], self.lon_deg[keep], self.height[keep], self.line[keep],
+                          self.repeated[keep], list(self.notices), sigma)
+
     def gaps(self, nominal_period: float = 1.0) -> list[tuple[float, float]]:
         """Intervals [s] longer than 1.5 nominal periods between consecutive fixes (GNSS outages)."""
         if len(self.time) < 2:
@@ -184,10 +191,94 @@ def to_reference_day(times: np.ndarray, ref_start: float, ref_end: float) -> np.
 
 
 def check_increasing(path: object, times: np.ndarray, lines: np.ndarray, column: str) -> None:
-    """Raise :class:`InputError` at the first line where time [s] goes backwards."""
-    back = np.flatnonzero(np.diff(times) < 0)
+    """Raise :class:`InputError` at the first line where time [s] goes backwards.
+
+    When the row before went *forward* by about as much (a time stamp spiked on one row), that row is named
+    instead: its time is the wrong one.
+    """
+    step = np.diff(times)
+    back = np.flatnonzero(step < 0)
     if len(back):
         i = back[0]
+        if i > 0 and step[i - 1] > 1.0 and abs(step[i - 1] + step[i]) < 0.5 * step[i - 1]:
+            raise InputError(path, int(lines[i]), column,
+                             f"the time jumps forward by {step[i - 1]:.3f} s on this line and back on line "
+                             f"{int(lines[i + 1])}: a wrong time stamp on one row")
         raise InputError(path, int(lines[i + 1]), column,
                          f"time goes backwards from {times[i]:.6f} s (line {int(lines[i])}) to "
                          f"{times[i + 1]:.6f} s")
+
+
+#: a step between POS rows longer than this [s] (and than 20 sample periods) is a gap that is checked
+GAP_SECONDS = 1.0
+
+
+def check_time_jumps(path: object, times: np.ndarray, lines: np.ndarray, counter: np.ndarray | None,
+                     time_column: str, counter_column: str | None) -> list[InputNotice]:
+    """Gaps in the POS rows' time [s]: a located error when the record counter shows the rows are consecutive.
+
+    A step longer than :data:`GAP_SECONDS` and 20 median sample periods is a gap. With a record counter, a gap
+    whose counter advances by ``k`` records is real when its time is at most ``2 k`` periods + 1 s; a longer
+    time over consecutive records is a wrong time stamp (e.g. TRIG_TIME raised by 100000 from one line on)
+    and an error. A counter that wraps or restarts proves nothing. Real gaps are returned as notices
+    (:func:`check_gnss_time_consistency` tests the rest against the GNSS positions).
+    """
+    if len(times) < 3:
+        return []
+    step = np.diff(times)
+    period = float(np.median(step))
+    gaps = np.flatnonzero(step > max(GAP_SECONDS, 20.0 * period))
+    notices: list[InputNotice] = []
+    real = []
+    for i in gaps.tolist():
+        if counter is not None:
+            records = int(counter[i + 1]) - int(counter[i])
+            if records > 0 and step[i] > 2.0 * records * period + 1.0:
+                raise InputError(path, int(lines[i + 1]), time_column,
+                                 f"the time jumps forward by {step[i]:.3f} s from line {int(lines[i])}, but the record "
+                                 f"counter ({counter_column}) advances by {records}: the rows are consecutive, so "
+                                 "this time stamp is wrong")
+        real.append(i)
+    if real:
+        longest = max(step[i] for i in real)
+        notices.append(InputNotice(path, [int(lines[i + 1]) for i in real], time_column,
+                                   f"{len(real)} gap(s) in the IMU rows (longest {longest:.1f} s)"))
+    return notices
+
+
+def check_gnss_time_consistency(path: object, times: np.ndarray, lines: np.ndarray, gnss: GnssEpochs, time_column: str,
+                                period: float | None) -> None:
+    """Raise :class:`InputError` where the POS time jumps but the GNSS positions go on as if it had not.
+
+    Across a real gap of ``dt`` seconds an aircraft moving at ``v`` covers about ``v dt``. When the first fix
+    after a gap of more than 3 fix periods lies where the last fixes predict it one fix *period* later
+    (within 25 % of a period's travel + 3 m) while moving at more than 5 m/s, the time stamps jumped and the
+    aircraft did not: e.g. TRIG_TIME raised by 100000 from one line on. The error names the POS row (``times``
+    [s], file ``lines``) with the longest step between the two fixes. ``period`` [s]: the GNSS fix period (the
+    median fix spacing when None).
+    """
+    if len(gnss) < 3:
+        return
+    from georef.frames import geodetic_to_ecef
+
+    t = gnss.time
+    step = np.diff(t)
+    nominal = float(period) if period else float(np.median(step))
+    r = geodetic_to_ecef(np.radians(gnss.lat_deg), np.radians(gnss.lon_deg), gnss.height)
+    for k in np.flatnonzero(step > max(3.0 * nominal, GAP_SECONDS + nominal)).tolist():
+        if k == 0 or t[k] - t[k - 1] <= 0:
+            continue
+        velocity = (r[k] - r[k - 1]) / (t[k] - t[k - 1])
+        speed = float(np.linalg.norm(velocity))
+        if speed < 5.0:
+            continue
+        predicted = r[k] + velocity * nominal
+        miss = float(np.linalg.norm(r[k + 1] - predicted))
+        moved = float(np.linalg.norm(r[k + 1] - r[k]))
+        if miss < 0.25 * speed * nominal + 3.0 and moved * 10.0 < speed * step[k]:
+            first, last = np.searchsorted(lines, [gnss.line[k], gnss.line[k + 1]])
+            row = int(first + np.argmax(np.diff(times[first:last + 1]))) + 1 if last > first else int(last)
+            raise InputError(path, int(lines[min(row, len(lines) - 1)]), time_column,
+                             f"the time jumps forward by {times[row] - times[row - 1]:.1f} s on this line, but the "
+                             f"GNSS position moved on by {moved:.0f} m at {speed:.0f} m/s, as after one fix period "
+                             f"({nominal:g} s): the time stamps are wrong from here on")

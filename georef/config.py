@@ -5,6 +5,7 @@ Units: metres for lever arms and GNSS sigmas, degrees for the boresight, hours f
 
 from __future__ import annotations
 
+import json
 import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -57,6 +58,8 @@ class ProcessingConfig:
     odm_angles: bool = False
     #: POS column role -> header name remapping
     pos_columns: dict[str, str] = field(default_factory=dict)
+    #: camera column role (number, time, milliseconds) -> header name remapping (Kamera.txt or the raw log)
+    camera_columns: dict[str, str] = field(default_factory=dict)
     #: yaw-offset recovery: window length [s], window step [s] and drift-smoothing bandwidth [s]
     yaw_window: float = 60.0
     yaw_step: float = 15.0
@@ -152,6 +155,19 @@ def load_config(path: Path | str, base: ProcessingConfig | None = None) -> Proce
         if section == "pos_columns":
             values["pos_columns"] = {str(k): str(v) for k, v in content.items()}
             continue
+        if section == "camera_columns":
+            from georef.io.camera import CAMERA_ROLES
+
+            if not isinstance(content, dict):
+                raise InputError(path, None, section, "[camera_columns] holds role = \"header name\" lines")
+            for key, value in content.items():
+                if key not in CAMERA_ROLES:
+                    raise InputError(path, None, f"camera_columns.{key}",
+                                     f"unknown camera column role; known: {', '.join(CAMERA_ROLES)}")
+                if not isinstance(value, str) or not value.strip():
+                    raise InputError(path, None, f"camera_columns.{key}", "give the header name as a string")
+            values["camera_columns"] = {str(k): str(v) for k, v in content.items()}
+            continue
         if section == "imu":
             known = {f.name for f in fields(ImuErrorModel)}
             unknown = [k for k in content if k not in known]
@@ -162,7 +178,7 @@ def load_config(path: Path | str, base: ProcessingConfig | None = None) -> Proce
             continue
         if section not in _SECTIONS or not isinstance(content, dict):
             raise InputError(path, None, section, f"unknown section [{section}]; known: "
-                             f"{', '.join([*_SECTIONS, 'pos_columns', 'imu'])}")
+                             f"{', '.join([*_SECTIONS, 'pos_columns', 'camera_columns', 'imu'])}")
         for key, value in content.items():
             if section == "ins" and key == "imu_noise_from_data":
                 raise InputError(path, None, "ins.imu_noise_from_data", "this setting was removed: the noise model "
@@ -198,6 +214,8 @@ def config_to_toml(cfg: ProcessingConfig) -> str:
             out.append(f"[{section}]\n" + "\n".join(rows))
     if cfg.pos_columns:
         out.append("[pos_columns]\n" + "\n".join(f'{k} = "{v}"' for k, v in cfg.pos_columns.items()))
+    if cfg.camera_columns:
+        out.append("[camera_columns]\n" + "\n".join(f"{k} = {json.dumps(v)}" for k, v in cfg.camera_columns.items()))
     if cfg.imu_model:
         out.append("[imu]\n" + "\n".join(f"{k} = {v:g}" for k, v in cfg.imu_model.items()))
     return "\n\n".join(out) + "\n"

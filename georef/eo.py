@@ -44,8 +44,10 @@ FLAG_NO_SIGMA = "no valid sigma (the solution's covariance is broken here; do no
 
 def _flags(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, outage_min_s: float) -> np.ndarray:
     flags: list[list[str]] = [[] for _ in range(len(exposures))]
+    problem = exposures.problem if exposures.problem is not None else np.full(len(exposures), "", dtype=object)
     for i in np.flatnonzero(~states.inside):
-        flags[i].append(FLAG_OUTSIDE)
+        # a row without a usable time (a cut-short line) says why instead of "outside the span"
+        flags[i].append(problem[i] or FLAG_OUTSIDE)
     for start, end in gnss.gaps():
         if end - start >= outage_min_s:
             for i in np.flatnonzero(states.inside & (exposures.time > start) & (exposures.time < end)):

@@ -24,7 +24,8 @@ from georef.frames.rotations import wrap_pi
 from georef.fusion import axis, ins
 from georef.fusion.ins_layout import UNIT_YAW
 from georef.fusion.solution import NavSolution
-from georef.io.camera import Exposures, read_camera_log, read_kamera
+from georef.io.camera import Exposures
+from georef.io.camera import read_exposures as read_camera_exposures
 from georef.io.errors import GeorefError, InputNotice
 from georef.io.image_names import ImageNames
 from georef.io.pos import PosLog, read_pos
@@ -191,14 +192,7 @@ def recompute_unit_tilt(log: PosLog) -> None:
 
 def read_exposures(path: Path | str, cfg: ProcessingConfig) -> Exposures:
     """Kamera.txt or the camera's raw log, told apart by the raw log's ``Exposition`` header column."""
-    path = Path(path)
-    header = ""
-    if path.exists() and path.is_file():
-        with open(path, encoding="utf-8", errors="replace") as handle:
-            header = handle.readline()
-    if "Exposition" in header.split("\t") or "Exposition" in header:
-        return read_camera_log(path, cfg.camera_utc_offset)
-    return read_kamera(path)
+    return read_camera_exposures(path, cfg.camera_utc_offset, cfg.camera_columns)
 
 
 def process(pos_path: Path | str, camera_path: Path | str, cfg: ProcessingConfig,

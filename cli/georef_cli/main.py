@@ -715,15 +715,22 @@ def _cell(value: Any) -> str:
 @_user_errors
 def info(
     pos: Annotated[Path, typer.Argument(help="POS unit log (POS.txt).")],
-    gnss_rate: Annotated[float | None, typer.Option(help="GNSS fix rate in Hz, if known.")] = 1.0,
+    config: Annotated[Path | None, typer.Option("--config", help="flight.toml: its [pos_columns] remapping and "
+                                                                 "[gnss] gnss_rate_hz are used.")] = None,
+    gnss_rate: Annotated[float | None, typer.Option(help="GNSS fix rate in Hz, if known (default: the config's, "
+                                                         "else 1).")] = None,
 ) -> None:
-    """Describe a POS log: span, rates, GNSS epochs and gaps, quirks repaired, columns found."""
+    """Describe a POS log: format, span, rates, GNSS epochs and gaps, quirks repaired, columns found."""
     from georef.io.pos import read_pos
 
-    log = read_pos(pos, gnss_rate_hz=gnss_rate)
+    cfg = load_config(config) if config else ProcessingConfig()
+    rate = gnss_rate if gnss_rate is not None else cfg.gnss_rate_hz
+    log = read_pos(pos, column_names=cfg.pos_columns, gnss_rate_hz=rate)
     table = Table(title=escape(str(pos)), show_header=False, title_justify="left")
     table.add_column("what", style="bold")
     table.add_column("value")
+    if log.dialect is not None:
+        table.add_row("format", escape(log.dialect.describe()))
     table.add_row("rows", f"{len(log)} at {log.sample_rate_hz:.2f} Hz")
     table.add_row("time span", f"{log.time[0]:.3f} - {log.time[-1]:.3f} s UTC of day "
                   f"({log.time[-1] - log.time[0]:.1f} s)")

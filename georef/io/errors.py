@@ -5,6 +5,21 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+#: the longest piece of a cell an error message quotes [characters]
+EXCERPT_CHARS = 40
+
+
+def excerpt(text: object, limit: int = EXCERPT_CHARS) -> str:
+    """``repr`` of at most ``limit`` characters of ``text``, with the full length when it was cut.
+
+    A 5 MB cell gives a message of a line, not of 5 MB: ``'3.14159265358979323846…' (5242880 characters)``.
+    """
+    text = str(text)
+    if len(text) <= limit:
+        return repr(text)
+    more = "over " if text.endswith("…") else ""
+    return f"{text[:limit]!r}… ({more}{len(text.rstrip('…'))} characters)"
+
 
 class GeorefError(Exception):
     """Base class of the errors georef reports to a user without a traceback."""
@@ -27,7 +42,7 @@ class InputError(GeorefError):
         if self.line is not None:
             where += f", line {self.line}"
         if self.column is not None:
-            where += f", column {self.column!r}"
+            where += f", column {excerpt(self.column)}"
         return f"{where}: {self.message}"
 
 
@@ -48,5 +63,5 @@ class InputNotice:
         if self.lines:
             where += f", line{'s' if len(self.lines) > 1 else ''} {shown}"
         if self.column is not None:
-            where += f", column {self.column!r}"
+            where += f", column {excerpt(self.column)}"
         return f"{where}: {self.message}"

@@ -15,12 +15,15 @@ import numpy as np
 from georef.align import (
     GnssEpochs,
     TimeRepairReport,
+    check_gnss_time_consistency,
     check_increasing,
+    check_time_jumps,
     extract_gnss_epochs,
     pos_sample_times,
 )
 from georef.io.errors import InputError, InputNotice
-from georef.io.table import Kind, read_table
+from georef.io.plausibility import check_gnss_jumps, check_ranges, repair_spikes
+from georef.io.table import Dialect, Kind, read_table
 
 #: Role -> (default header name, kind). Units: ACCS/IACC m/s^2, OMGS/IOMG deg/s, angles deg,
 #: TRIG_TIME s x 100, SAMPL_TIME us, LAT/LON deg, ALTITUDE m (ellipsoidal), VELOCITY m/s.
@@ -37,6 +40,9 @@ POS_ROLES: dict[str, tuple[str, Kind]] = {
     "gnss_speed": ("VELOCITY", "float"),
     "status": ("STATUS[HEX]", "hex"),
 }
+
+#: TRIG_TIME [s x 100] of a UTC day: 0 up to 86400 s (86401 s with a leap second)
+TRIG_TIME_RANGE = (0, 8_640_100)
 
 #: Roles every reading needs.
 BASE_ROLES = ("trig_time", "sampl_time", "lat", "lon", "alt")
@@ -58,6 +64,8 @@ class PosLog:
     time_repairs: TimeRepairReport
     notices: list[InputNotice] = field(default_factory=list)
     column_names: dict[str, str] = field(default_factory=dict)
+    #: separator and encoding the file was read with
+    dialect: Dialect | None = None
 
     def __len__(self) -> int:
         return len(self.time)
@@ -91,8 +99,11 @@ def read_pos(
     """Read a POS.txt log: times repaired and unwrapped, GNSS fixes extracted, every problem located.
 
     ``required_roles`` are the roles (beyond time and GNSS) the chosen method needs; a missing one is an
-    :class:`InputError` on line 1. Exact duplicate rows are dropped with a notice; a time that goes
-    backwards (other than across midnight) or a repeated time with different values is an error.
+    :class:`InputError` on line 1. Header names are matched ignoring case. Exact duplicate rows are dropped
+    with a notice; a time that goes backwards (other than across midnight), a repeated time with different
+    values or a time jump over consecutive records is an error. Values outside the plausibility limits are
+    errors and one-row spikes are repaired with a notice (:mod:`georef.io.plausibility`); GNSS fixes that jump
+    faster than any aircraft are dropped (one) or an error (lasting).
     """
     path = Path(path)
     names = resolve_columns(column_names)
@@ -101,23 +112,33 @@ def read_pos(
     table = read_table(path, wanted, required={names[role] for role in required})
     notices = list(table.notices)
     data = {role: table.columns[names[role]] for role in POS_ROLES if names[role] in table.columns}
+    # the file's own spelling of each column, for messages
+    spelled = {role: table.names.get(names[role], names[role]) for role in POS_ROLES}
     lines = table.lines
 
     sampl = data["sampl_time"]
     bad_sampl = np.flatnonzero((sampl < 0) | (sampl >= 1_000_000))
     if len(bad_sampl):
         i = bad_sampl[0]
-        raise InputError(path, int(lines[i]), names["sampl_time"],
+        raise InputError(path, int(lines[i]), spelled["sampl_time"],
                          f"SAMPL_TIME {sampl[i]:.0f} us is outside 0..999999")
-    times, repairs = pos_sample_times(data["trig_time"], sampl, lines)
+    trig = data["trig_time"]
+    bad_trig = np.flatnonzero((trig < TRIG_TIME_RANGE[0]) | (trig >= TRIG_TIME_RANGE[1]))
+    if len(bad_trig):
+        i = bad_trig[0]
+        raise InputError(path, int(lines[i]), spelled["trig_time"],
+                         f"TRIG_TIME {trig[i]:.10g} is outside a day (0..{TRIG_TIME_RANGE[1] - 1} hundredths of a "
+                         "second)")
+    times, repairs = pos_sample_times(trig, sampl, lines)
     if repairs.n_quirks:
-        notices.append(InputNotice(path, repairs.quirk_lines, names["trig_time"],
+        notices.append(InputNotice(path, repairs.quirk_lines, spelled["trig_time"],
                                    f"TRIG_TIME logger quirk repaired {repairs.n_quirks} time(s) "
                                    "(rose by other than a whole second)"))
     if repairs.midnight_lines:
-        notices.append(InputNotice(path, repairs.midnight_lines, names["trig_time"],
+        notices.append(InputNotice(path, repairs.midnight_lines, spelled["trig_time"],
                                    "midnight roll-over: later times continue past 86400 s"))
 
+    time_column = f"{spelled['trig_time']}/{spelled['sampl_time']}"
     # Exact duplicate rows (same time and same values) are dropped and reported.
     same_time = np.flatnonzero(np.diff(times) == 0) + 1
     if len(same_time):
@@ -126,7 +147,7 @@ def read_pos(
             identical &= values[same_time] == values[same_time - 1]
         if not identical.all():
             i = same_time[~identical][0]
-            raise InputError(path, int(lines[i]), f"{names['trig_time']}/{names['sampl_time']}",
+            raise InputError(path, int(lines[i]), time_column,
                              f"same time stamp as line {int(lines[i - 1])} but different values")
         notices.append(InputNotice(path, lines[same_time].tolist(), None,
                                    f"{len(same_time)} duplicate row(s) dropped (identical to the row before)"))
@@ -134,25 +155,33 @@ def read_pos(
         keep[same_time] = False
         times, lines = times[keep], lines[keep]
         data = {role: values[keep] for role, values in data.items()}
-    check_increasing(path, times, lines, f"{names['trig_time']}/{names['sampl_time']}")
+    check_increasing(path, times, lines, time_column)
+    counter = data.get("counter")
+    notices += check_time_jumps(path, times, lines, counter, time_column, spelled["counter"])
 
-    if "counter" in data and len(data["counter"]) > 1:
-        step = np.diff(data["counter"].astype(np.int64))
+    if counter is not None and len(counter) > 1:
+        step = np.diff(counter.astype(np.int64))
         jumps = np.flatnonzero(step > 1)
         if len(jumps):
-            notices.append(InputNotice(path, lines[jumps + 1].tolist(), names["counter"],
+            notices.append(InputNotice(path, lines[jumps + 1].tolist(), spelled["counter"],
                                        f"record counter skips {int((step[jumps] - 1).sum())} record(s): "
                                        "rows missing from the log"))
 
-    lat, lon, alt = data["lat"], data["lon"], data["alt"]
+    lat, lon = data["lat"], data["lon"]
     out_of_range = np.flatnonzero((np.abs(lat) > 90) | (np.abs(lon) > 180))
     if len(out_of_range):
         i = out_of_range[0]
-        column = names["lat"] if abs(lat[i]) > 90 else names["lon"]
-        raise InputError(path, int(lines[i]), column, f"coordinate {lat[i] if abs(lat[i]) > 90 else lon[i]} "
+        column = spelled["lat"] if abs(lat[i]) > 90 else spelled["lon"]
+        raise InputError(path, int(lines[i]), column, f"coordinate {lat[i] if abs(lat[i]) > 90 else lon[i]:.10g} "
                          "is outside the valid range (degrees expected)")
-    gnss = extract_gnss_epochs(path, times, lat, lon, alt, lines, rate_hz=gnss_rate_hz,
+    check_ranges(path, data, lines, spelled)
+    notices += repair_spikes(path, data, lines, spelled)
+    gnss = extract_gnss_epochs(path, times, data["lat"], data["lon"], data["alt"], lines, rate_hz=gnss_rate_hz,
                                ground_speed=data.get("gnss_speed"))
+    gnss_columns = f"{spelled['lat']}/{spelled['lon']}/{spelled['alt']}"
+    gnss, jump_notices = check_gnss_jumps(path, gnss, gnss_columns)
+    check_gnss_time_consistency(path, times, lines, gnss, time_column, 1.0 / gnss_rate_hz if gnss_rate_hz else None)
     notices.extend(gnss.notices)
+    notices.extend(jump_notices)
     return PosLog(path=path, time=times, data=data, lines=lines, gnss=gnss, time_repairs=repairs,
-                  notices=notices, column_names={role: names[role] for role in data})
+                  notices=notices, column_names={role: spelled[role] for role in data}, dialect=table.dialect)

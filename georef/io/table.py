@@ -1,33 +1,97 @@
-"""A tab/comma separated table reader that locates every problem by file, line and column.
+"""Header-led text tables (POS.txt, Kamera.txt, imu.csv, gnss.csv), read with every problem located.
 
-The fast path is pandas' C parser on the wanted columns only. When it refuses a cell, a slower
-diagnostic pass finds the exact line and column so the user can fix the file.
+The rules (``docs/formats.md``, "Reading text tables"):
+
+* **Encoding**: UTF-8 (ASCII is UTF-8). A UTF-8 byte-order mark is removed; UTF-16 with a byte-order mark
+  (Excel's "Unicode text") is converted. A NUL byte (a binary or damaged file), an undecodable byte or a
+  carriage return inside a line is an error naming its line and column. A file with a NUL byte in its first
+  64 KiB is refused before anything else is read.
+* **Separator**: tab, semicolon, comma or runs of blanks, detected from the header line and checked against
+  the first data lines. When two separators fit, or the data lines use another one than the header, it is an
+  error that names the line and says what was seen.
+* **Header names** are matched ignoring case and surrounding blanks; two columns matching one wanted name
+  are an error.
+* **Quotes** are ordinary characters: they never join fields or lines. A quote in a number is an error in
+  its own cell; a quote in a text cell (a frame id) is an error too, since no format here has one.
+* **Fields**: a line with more fields than the header is an error. A line with fewer is an error, except the
+  last line (a logger that lost power), which is dropped with a notice, or kept and marked when the caller
+  asks (``short_rows="keep"``: Kamera.txt, where every frame gets a row). Blank lines are skipped with a notice.
+* **Numbers** are ASCII decimals (``-1.5``, ``2e-3``). ``inf``, ``nan``, overflowing exponents, hexadecimal,
+  digits of other scripts, decimal commas and quoted numbers are errors naming line and column. Messages
+  quote at most :data:`~georef.io.errors.EXCERPT_CHARS` characters of a cell.
+
+The file is streamed once, in 256 KiB blocks, through a checker (:class:`_Scanner`) on its way to pandas' C
+parser, which converts only the wanted columns; no copy of the whole file is held. When pandas refuses a
+cell, a second, chunked pass finds its line and column.
 """
 
 from __future__ import annotations
 
+import codecs
+import csv
+import io
 import os
+import re
+import stat
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import BinaryIO, Literal
 
 import numpy as np
 import pandas as pd
 
-from georef.io.errors import InputError, InputNotice
+from georef.io.errors import InputError, InputNotice, excerpt
 
 Kind = Literal["float", "int", "hex", "str"]
+
+#: separators tried, in order; None stands for runs of blanks (spaces or tabs)
+SEPARATORS: tuple[str, ...] = ("\t", ";", ",")
+SEPARATOR_NAMES = {"\t": "tab", ";": "semicolon", ",": "comma", None: "whitespace"}
+
+_BLOCK = 1 << 18          # bytes handed to pandas per read
+_SNIFF = 1 << 16          # bytes looked at before parsing (header, separator, binary check)
+_MAX_ANOMALIES = 10_000   # short or blank lines recorded before the file is called unreadable
+_LINE_PEEK = 4096         # bytes of a line read back to explain it
+
+_UTF8_BOM = b"\xef\xbb\xbf"
+_UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
+_FLOAT_TEXT = r"\s*[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\s*"
+_HEX_TEXT = r"\s*(?:0[xX])?[0-9a-fA-F]{1,16}\s*"
+_BAD_TEXT = re.compile(r'["\x00-\x08\x0a-\x1f\x7f]')
+_KIND_WORDS = {"float": "a number", "int": "a whole number", "hex": "a hexadecimal number"}
+
+
+@dataclass(frozen=True)
+class Dialect:
+    """How a table file was written: its separator (None: runs of blanks) and its encoding."""
+
+    separator: str | None
+    encoding: str
+
+    def describe(self) -> str:
+        """E.g. ``"tab-separated, UTF-8 (byte-order mark removed)"``."""
+        return f"{SEPARATOR_NAMES[self.separator]}-separated, {self.encoding}"
 
 
 @dataclass
 class Table:
-    """Columns read from a file, by name, with the 1-based file line of every row (header = line 1)."""
+    """Columns read from a file, by the caller's name, with the 1-based file line of every row (header = 1).
+
+    ``names`` maps each wanted name found to the file's own spelling of it. ``incomplete`` marks rows whose
+    line was cut short (``short_rows="keep"`` only; their missing cells are NaN or empty text) and
+    ``fields`` holds the number of fields of each such row (0 elsewhere).
+    """
 
     path: Path
     header: list[str]
     columns: dict[str, np.ndarray]
     lines: np.ndarray
     notices: list[InputNotice] = field(default_factory=list)
+    dialect: Dialect = Dialect("\t", "UTF-8")
+    names: dict[str, str] = field(default_factory=dict)
+    incomplete: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    fields: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
 
     def __len__(self) -> int:
         return len(self.lines)
@@ -36,162 +100,774 @@ class Table:
         """Keep only the rows selected by the boolean mask or index array ``keep``."""
         self.columns = {name: values[keep] for name, values in self.columns.items()}
         self.lines = self.lines[keep]
+        if len(self.incomplete):
+            self.incomplete = self.incomplete[keep]
+            self.fields = self.fields[keep]
+
+
+# --------------------------------------------------------------------------------------------------- hex
+
+
+_HEX_LUT = np.full(256, 255, dtype=np.uint8)
+for _i, _c in enumerate(b"0123456789abcdef"):
+    _HEX_LUT[_c] = _i
+for _i, _c in enumerate(b"ABCDEF"):
+    _HEX_LUT[_c] = 10 + _i
 
 
 def _hex_or_none(text: object) -> int | None:
-    try:
-        value = int(str(text), 16)
-    except ValueError:
+    if not isinstance(text, str) or not re.fullmatch(_HEX_TEXT, text):
         return None
-    return value if 0 <= value < 2**64 and "_" not in str(text) else None
+    return int(text, 16)
+
+
+def _parse_bare_hex(values: np.ndarray) -> np.ndarray | None:
+    """Cells of 1-16 bare ASCII hex digits, vectorised over the joined text; None when any cell is not."""
+    try:
+        joined = "\n".join(values)
+    except TypeError:
+        return None
+    if not joined.isascii():
+        return None
+    buf = np.frombuffer(joined.encode("ascii"), dtype=np.uint8)
+    breaks = np.flatnonzero(buf == 10)
+    starts = np.empty(len(values), dtype=np.intp)
+    starts[0] = 0
+    starts[1:] = breaks + 1
+    ends = np.empty(len(values), dtype=np.intp)
+    ends[:-1] = breaks
+    ends[-1] = len(buf)
+    lengths = ends - starts
+    if lengths.min() < 1 or lengths.max() > 16:
+        return None
+    digits = _HEX_LUT[buf]
+    digits[breaks] = 0
+    if np.any(digits > 15):
+        return None
+    cell = np.repeat(np.arange(len(values)), lengths + 1)[: len(buf)]
+    shift = (ends[cell] - np.arange(len(buf)) - 1).clip(0).astype(np.uint64) * np.uint64(4)
+    return np.add.reduceat(digits.astype(np.uint64) << shift, starts)
 
 
 def parse_hex(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Hex-string parsing: the integers (uint64) and a mask of cells that are not hex.
 
-    Surrounding blanks and a ``0x`` prefix are accepted. The common all-valid case is one pass of
-    Python's ``int(text, 16)`` (about 0.1 s per million cells); the mask is built only on failure.
+    Accepted: 1 to 16 ASCII hex digits, a ``0x`` prefix, surrounding blanks. The common case (bare digits) is
+    vectorised (about 30 ms per million cells); anything else goes cell by cell.
     """
     values = np.asarray(values, dtype=object)
-    try:
-        parsed = np.fromiter((int(text, 16) for text in values), dtype=np.uint64, count=len(values))
-        if not any("_" in text for text in values if isinstance(text, str) and len(text) > 2):
-            return parsed, np.zeros(len(values), dtype=bool)
-    except (ValueError, TypeError, OverflowError):
-        pass
+    if len(values) == 0:
+        return np.zeros(0, np.uint64), np.zeros(0, bool)
+    fast = _parse_bare_hex(values)
+    if fast is not None:
+        return fast, np.zeros(len(values), bool)
     checked = [_hex_or_none(text) for text in values]
     bad = np.array([value is None for value in checked], dtype=bool)
     return np.array([value or 0 for value in checked], dtype=np.uint64), bad
 
 
-def _read_header(path: Path, sep: str) -> list[str]:
-    if not path.exists():
-        raise InputError(path, None, None, "file not found")
-    if path.is_dir():
-        raise InputError(path, None, None, "is a folder, not a file")
-    if os.path.getsize(path) == 0:
-        raise InputError(path, 1, None, "the file is empty (no header line)")
-    with open(path, encoding="utf-8", errors="replace") as handle:
-        header_line = handle.readline()
-        has_data = any(line.strip() for line in handle)
-    header = [name.strip() for name in header_line.rstrip("\r\n").split(sep)]
-    if not any(header):
-        raise InputError(path, 1, None, "the header line is blank")
-    if not has_data:
-        raise InputError(path, 2, None, "no data rows after the header")
-    return header
+# ------------------------------------------------------------------------------------------------ opening
 
 
-def _last_line_field_count(path: Path, sep: str) -> tuple[int, bool]:
-    """Number of fields on the last non-blank line, and whether the file ends without a newline."""
+def _nul_error(path: Path, data: bytes, index: int, sep: str | None = None,
+               header: list[str] | None = None) -> InputError:
+    """A NUL byte at ``index`` of ``data`` (which starts at line 1)."""
+    line = data.count(b"\n", 0, index) + 1
+    column = None
+    if header is not None and line > 1:
+        start = data.rfind(b"\n", 0, index) + 1
+        column = _column_at(data[start:index], sep, header)
+    return InputError(path, line, column, f"a NUL byte (byte {index} of the file): this is not a text table "
+                      "(a binary file, a damaged copy, or UTF-16 without a byte-order mark?)")
+
+
+def _read_pipe(path: Path) -> bytes:
+    """All bytes of a pipe (FIFO), refused at once when its first block is binary."""
+    parts = []
     with open(path, "rb") as handle:
-        handle.seek(0, os.SEEK_END)
-        size = handle.tell()
-        handle.seek(max(0, size - 65536))
-        tail = handle.read()
-    ends_with_newline = tail.endswith(b"\n")
-    lines = [line for line in tail.split(b"\n") if line.strip()]
-    last = lines[-1].decode("utf-8", errors="replace").rstrip("\r") if lines else ""
-    return len(last.split(sep)), not ends_with_newline
+        first = handle.read(_SNIFF)
+        if b"\0" in first:
+            raise _nul_error(path, first, first.index(b"\0"))
+        parts.append(first)
+        while block := handle.read(1 << 20):
+            parts.append(block)
+    return b"".join(parts)
 
 
-def _locate_bad_cell(path: Path, sep: str, name: str, kind: Kind) -> InputError | None:
-    """Diagnostic pass: the first cell of column ``name`` that is not a valid ``kind``."""
-    text = pd.read_csv(path, sep=sep, usecols=[name], dtype=str, skip_blank_lines=False,
-                       keep_default_na=False, engine="c")[name].str.strip()
-    if kind == "hex":
-        _, bad = parse_hex(text.to_numpy())
-        bad &= text.to_numpy() != ""
+def _open_source(path: Path) -> BinaryIO:
+    """A seekable binary handle on ``path``; folders, devices, sockets and empty files are refused.
+
+    A named pipe (FIFO, e.g. ``<(zcat POS.txt.gz)``) can be read only once, so it is read into memory.
+    """
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise InputError(path, None, None, "file not found") from None
+    except OSError as exc:
+        raise InputError(path, None, None, f"cannot read the file: {exc.strerror}") from None
+    mode = st.st_mode
+    if stat.S_ISDIR(mode):
+        raise InputError(path, None, None, "is a folder, not a file")
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        raise InputError(path, None, None, "is a device, not a file")
+    try:
+        if stat.S_ISFIFO(mode):
+            data = _read_pipe(path)
+            if not data:
+                raise InputError(path, 1, None, "the pipe gave no data (no header line)")
+            return io.BytesIO(data)
+        if not stat.S_ISREG(mode):
+            raise InputError(path, None, None, "is not a regular file (a socket?)")
+        if st.st_size == 0:
+            raise InputError(path, 1, None, "the file is empty (no header line)")
+        return open(path, "rb", buffering=0)  # noqa: SIM115 - closed by read_table
+    except PermissionError:
+        raise InputError(path, None, None, "cannot read the file: permission denied") from None
+    except IsADirectoryError:
+        raise InputError(path, None, None, "is a folder, not a file") from None
+
+
+def _utf16_to_utf8(path: Path, handle: BinaryIO) -> BinaryIO:
+    """A UTF-16 file (with its byte-order mark) converted to UTF-8 in memory."""
+    handle.seek(0)
+    data = handle.read()
+    handle.close()
+    try:
+        text = data.decode("utf-16")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].decode("utf-16", errors="replace").count("\n") + 1
+        raise InputError(path, line, None, f"byte {exc.start} is not valid UTF-16 (the file starts with a "
+                         "UTF-16 byte-order mark)") from None
+    encoded = text.encode("utf-8")
+    if b"\0" in encoded:
+        raise _nul_error(path, encoded, encoded.index(b"\0"))
+    return io.BytesIO(encoded)
+
+
+# ---------------------------------------------------------------------------------------------- separator
+
+
+def _split(text: str, sep: str | None) -> list[str]:
+    return text.split() if sep is None else text.split(sep)
+
+
+def _column_at(line_prefix: bytes, sep: str | None, header: list[str], marks: int = 0, in_word: bool = False) -> str:
+    """The header name of the field in which a line's bytes ``line_prefix`` end.
+
+    ``marks`` and ``in_word`` carry the state of the part of the line before ``line_prefix`` (separators or
+    word starts seen, and whether it ended inside a word) when the line began in an earlier block.
+    """
+    if sep is None:
+        words = re.findall(rb"\S+", line_prefix)
+        continues = bool(line_prefix[:1]) and not line_prefix[:1].isspace() and in_word
+        total = marks + len(words) - (1 if continues else 0)
+        ends_in_word = (bool(line_prefix) and not line_prefix[-1:].isspace()) or (not line_prefix and in_word)
+        index = total - 1 if ends_in_word else total
     else:
-        numbers = pd.to_numeric(text, errors="coerce")
-        bad = (numbers.isna() & (text != "")).to_numpy()
-        if kind == "int" and not bad.any():
-            finite = numbers.notna().to_numpy()
-            bad = finite & (numbers.fillna(0).to_numpy() % 1 != 0)
-    if bad.any():
-        index = int(np.argmax(bad))
-        what = {"float": "a number", "int": "a whole number", "hex": "a hexadecimal number"}.get(kind, kind)
-        return InputError(path, index + 2, name, f"cannot read {text.iloc[index]!r} as {what}")
+        index = marks + line_prefix.count(sep.encode())
+    return _field_name(header, max(index, 0))
+
+
+def _field_name(header: list[str], index: int) -> str:
+    if index < len(header):
+        return header[index] or f"field {index + 1} (no name)"
+    return f"field {index + 1} (the header has {len(header)})"
+
+
+def _describe_counts(text: str) -> str:
+    parts = [f"{text.count(sep)} {SEPARATOR_NAMES[sep]}{'s' if text.count(sep) != 1 else ''}"
+             for sep in SEPARATORS if sep in text]
+    return ", ".join(parts) if parts else "no tab, semicolon or comma"
+
+
+def _detect_separator(path: Path, header_text: str, samples: list[tuple[int, str]]) -> str | None:
+    """The separator of a table from its header line and a few data lines ``(line number, text)``."""
+    candidates = [sep for sep in SEPARATORS if sep in header_text]
+    if not candidates:
+        chosen: str | None = None if len(header_text.split()) > 1 else "\t"
+    elif len(candidates) == 1:
+        chosen = candidates[0]
+    else:
+        fitting = [sep for sep in candidates
+                   if samples and all(len(_split(text, sep)) == len(_split(header_text, sep)) for _, text in samples)]
+        if len(fitting) != 1:
+            seen = " and ".join(SEPARATOR_NAMES[sep] for sep in fitting) if fitting else "none of them"
+            last = samples[-1][0] if samples else 1
+            raise InputError(path, 1, None, "cannot tell the separator: the header has "
+                             f"{_describe_counts(header_text)}, and lines 2-{last} fit {seen}; use one separator "
+                             "(tab, semicolon or comma)")
+        chosen = fitting[0]
+    # the data must be split the same way: a header with tabs over lines with semicolons is not guessed at
+    n_fields = len(_split(header_text, chosen))
+    for line, text in samples:
+        if len(_split(text, chosen)) == n_fields:
+            return chosen
+        others = [sep for sep in (*SEPARATORS, None) if sep != chosen and len(_split(text, sep)) == n_fields
+                  and len(_split(header_text, sep)) != n_fields]
+        if others:
+            raise InputError(path, line, None, f"the header (line 1) is {SEPARATOR_NAMES[chosen]}-separated into "
+                             f"{n_fields} fields, but this line splits into {n_fields} fields only with "
+                             f"{' or '.join(SEPARATOR_NAMES[s] for s in others)}; use one separator throughout")
+        return chosen
+    return chosen
+
+
+# ------------------------------------------------------------------------------------------------ scanner
+
+
+class _AbortError(Exception):
+    """Raised inside pandas' read to stop it; the scanner's ``problem`` says why."""
+
+
+class _Scanner(io.RawIOBase):
+    """A pass-through reader that checks every block pandas reads.
+
+    It stops at a NUL byte, an undecodable byte, a carriage return inside a line or a line with more fields
+    than the header, and records blank lines and lines with fewer fields (with their byte offsets). Field
+    counts are vectorised with numpy (separator positions, or word starts for blank-separated files).
+    """
+
+    def __init__(self, handle: BinaryIO, path: Path, sep: str | None, header: list[str], offset: int) -> None:
+        super().__init__()
+        self._handle = handle
+        self.path = path
+        self.sep = sep
+        self.header = header
+        self.n_fields = len(header)
+        self._sep_byte = None if sep is None else ord(sep)
+        self.line = 2                  # number of the line being read
+        self.line_start = offset       # its first byte
+        self.offset = offset           # next byte to read
+        self._marks = 0                # separators (or word starts) so far in the current line
+        self._in_word = False          # whitespace mode: the previous byte was part of a word
+        self._nonblank = False         # the current line has a non-blank byte so far
+        self._pending_cr = False
+        self._decoder = codecs.getincrementaldecoder("utf-8")()
+        self.short: list[tuple[int, int, int]] = []   # (line, fields, offset of its first byte)
+        self.blank: list[int] = []
+        self.problem: InputError | None = None
+        self.n_lines = 0
+        self.finished = False
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:  # type: ignore[override]
+        n = self._handle.readinto(buffer)
+        if not n:
+            self._finish()
+            return 0
+        self._check(bytes(memoryview(buffer)[:n]))
+        self.offset += n
+        return n
+
+    # -- locating
+    def _fail(self, chunk: bytes, index: int, message: str) -> None:
+        """Stop at byte ``index`` of ``chunk`` (negative: the end of the previous block)."""
+        index = max(index, 0)
+        before = chunk[:index]
+        newlines = before.count(b"\n")
+        if newlines:
+            prefix = before[before.rfind(b"\n") + 1:]
+            column = _column_at(prefix, self.sep, self.header)
+        else:
+            column = _column_at(before, self.sep, self.header, self._marks, self._in_word)
+        self.problem = InputError(self.path, self.line + newlines, column, message)
+        raise _AbortError(message)
+
+    # -- checks of one block
+    def _check(self, chunk: bytes) -> None:
+        nul = chunk.find(b"\0")
+        if nul >= 0:
+            self._fail(chunk, nul, f"a NUL byte (byte {self.offset + nul} of the file): not text (a damaged copy, "
+                                   "or binary data?)")
+        pending = self._decoder.getstate()[0]
+        if pending or not chunk.isascii():
+            try:
+                self._decoder.decode(chunk)
+            except UnicodeDecodeError as exc:
+                index = exc.start - len(pending)
+                bad = chunk[max(index, 0)]
+                self._fail(chunk, index, f"byte 0x{bad:02x} (byte {self.offset + max(index, 0)} of the file) is not "
+                                         "UTF-8 text; save the file as UTF-8")
+        a = np.frombuffer(chunk, dtype=np.uint8)
+        if self._pending_cr and a[0] != 10:
+            self._fail(chunk, -1, "a carriage return (CR) inside a line; lines must end in LF or CR LF")
+        if b"\r" in chunk:
+            cr = np.flatnonzero(a == 13)
+            follows = cr + 1 < len(a)
+            lone = cr[follows][a[cr[follows] + 1] != 10]
+            if len(lone):
+                self._fail(chunk, int(lone[0]), "a carriage return (CR) inside a line; lines must end in LF or CR LF")
+            self._pending_cr = bool(a[-1] == 13)
+        else:
+            self._pending_cr = False
+        self._count_fields(chunk, a)
+
+    def _count_fields(self, chunk: bytes, a: np.ndarray) -> None:
+        newlines = np.flatnonzero(a == 10)
+        if self.sep is None:
+            brk = (a == 32) | (a == 9) | (a == 13) | (a == 10) | (a == 11) | (a == 12)
+            before = np.empty(len(a), dtype=bool)
+            before[0] = not self._in_word
+            before[1:] = brk[:-1]
+            marks = ~brk & before
+            extra = 0
+        else:
+            marks = a == self._sep_byte
+            extra = 1
+        if len(newlines) == 0:
+            self._marks += int(np.count_nonzero(marks))
+            self._nonblank = self._nonblank or bool(chunk.strip())
+            self._in_word = bool(a[-1] not in (32, 9, 13, 10, 11, 12))
+            return
+        last = int(newlines[-1])
+        starts = np.empty(len(newlines), dtype=np.intp)
+        starts[0] = 0
+        starts[1:] = newlines[:-1] + 1
+        counts = np.add.reduceat(marks[: last + 1], starts, dtype=np.int64)
+        counts[0] += self._marks
+        fields = counts + extra
+        odd = np.flatnonzero(fields != self.n_fields)
+        for k in odd.tolist():
+            start = self.line_start if k == 0 else self.offset + int(starts[k])
+            self._anomaly(chunk, k, int(fields[k]), start, newlines)
+        self.n_lines += len(newlines)
+        self.line += len(newlines)
+        self.line_start = self.offset + last + 1
+        self._marks = int(np.count_nonzero(marks[last + 1:]))
+        tail = chunk[last + 1:]
+        self._nonblank = bool(tail.strip())
+        self._in_word = bool(tail) and a[-1] not in (32, 9, 13, 10, 11, 12)
+
+    def _anomaly(self, chunk: bytes, k: int, fields: int, start: int, newlines: np.ndarray) -> None:
+        line = self.line + k
+        if fields > self.n_fields:
+            begin = 0 if k == 0 else int(newlines[k - 1]) + 1
+            text = chunk[begin:int(newlines[k])]
+            cut = _nth_separator(text, self.sep, self.n_fields)
+            offset = begin + cut if cut is not None else begin
+            self._fail(chunk, offset, f"{fields} fields, but the header has {self.n_fields}: a separator too many "
+                                      "(or two lines run together?)")
+        if fields <= 1:
+            begin = 0 if k == 0 else int(newlines[k - 1]) + 1
+            content = bool(chunk[begin:int(newlines[k])].strip()) or (k == 0 and self._nonblank)
+            if not content:
+                self.blank.append(line)
+                self._check_count()
+                return
+        self.short.append((line, fields, start))
+        self._check_count()
+
+    def _check_count(self) -> None:
+        if len(self.short) + len(self.blank) > _MAX_ANOMALIES:
+            line = self.short[0][0] if self.short else self.blank[0]
+            self.problem = InputError(self.path, line, None, f"more than {_MAX_ANOMALIES} lines are blank or have "
+                                      f"fewer fields than the header ({self.n_fields}), from this line on: is the "
+                                      f"separator right ({SEPARATOR_NAMES[self.sep]})?")
+            raise _AbortError("too many short lines")
+
+    def _finish(self) -> None:
+        if self.finished:
+            return
+        self.finished = True
+        try:
+            self._decoder.decode(b"", final=True)
+        except UnicodeDecodeError:
+            self.problem = InputError(self.path, self.line, None, "the file ends inside a UTF-8 character "
+                                      "(cut short?)")
+            raise _AbortError("incomplete UTF-8") from None
+        if self.offset > self.line_start:
+            # an unterminated last line (a trailing lone CR is its line end)
+            fields = self._marks + (1 if self.sep is not None else 0)
+            if fields > self.n_fields:
+                self.problem = InputError(self.path, self.line, _field_name(self.header, self.n_fields),
+                                          f"{fields} fields, but the header has {self.n_fields}")
+                raise _AbortError("too many fields")
+            if not self._nonblank:
+                self.blank.append(self.line)
+            elif fields < self.n_fields:
+                self.short.append((self.line, fields, self.line_start))
+            self.n_lines += 1
+
+
+def _nth_separator(text: bytes, sep: str | None, n: int) -> int | None:
+    """Byte index of the start of field ``n`` (0-based) of a line, or None."""
+    decoded = text.decode("utf-8", errors="replace")
+    if sep is None:
+        matches = list(re.finditer(r"\S+", decoded))
+        return len(decoded[: matches[n].start()].encode()) if len(matches) > n else None
+    parts = decoded.split(sep)
+    return len(sep.join(parts[:n]).encode()) + 1 if len(parts) > n else None
+
+
+def _line_at(handle: BinaryIO, offset: int, limit: int = _LINE_PEEK) -> tuple[str, bool]:
+    """The text of the line starting at byte ``offset`` (at most ``limit`` bytes) and whether it is whole."""
+    handle.seek(offset)
+    data = handle.read(limit + 1)
+    end = data.find(b"\n")
+    whole = end >= 0 or len(data) <= limit
+    data = data[:end] if end >= 0 else data[:limit]
+    return data.rstrip(b"\r").decode("utf-8", errors="replace"), whole
+
+
+def _line_offset(handle: BinaryIO, start: int, first_line: int, wanted: int) -> int | None:
+    """Byte offset of file line ``wanted``, counting from byte ``start`` (which begins line ``first_line``)."""
+    handle.seek(start)
+    line, position = first_line, start
+    if line == wanted:
+        return start
+    while block := handle.read(1 << 20):
+        if line + block.count(b"\n") >= wanted:
+            k = 0
+            while (found := block.find(b"\n", k)) >= 0:
+                line += 1
+                if line == wanted:
+                    return position + found + 1
+                k = found + 1
+        line += block.count(b"\n")
+        position += len(block)
     return None
+
+
+# --------------------------------------------------------------------------------------------------- cells
+
+
+def _cell_problem(text: str, kind: Kind, sep: str | None) -> str:
+    """Why ``text`` is not a valid cell of ``kind``, for a message (with the cell's excerpt)."""
+    message = f"cannot read {excerpt(text)} as {_KIND_WORDS.get(kind, kind)}"
+    stripped = text.strip()
+    hints = []
+    if '"' in text or "'" in text:
+        hints.append("quotes are not part of this format")
+    if stripped.lower().lstrip("+-") in ("inf", "infinity", "nan"):
+        hints.append("not a finite number")
+    elif kind != "hex" and re.fullmatch(_FLOAT_TEXT, text) and not np.isfinite(float(stripped)):
+        hints.append("too large: not a finite number")
+    if any(ch.isdigit() and not ch.isascii() for ch in text):
+        hints.append("digits must be ASCII 0-9")
+    elif not text.isascii():
+        hints.append("it holds non-ASCII characters")
+    if kind == "float" and "," in stripped and sep != "," and re.fullmatch(_FLOAT_TEXT, stripped.replace(",", ".")):
+        hints.append("a decimal comma? use a decimal point")
+    if any(ord(ch) < 32 or ord(ch) == 127 for ch in text):
+        hints.append("it holds a control character")
+    return message + (f" ({'; '.join(hints)})" if hints else "")
+
+
+def _bad_cells(text: pd.Series, kind: Kind) -> np.ndarray:
+    """Mask of non-empty cells of ``text`` (strings, NaN = empty) that are not valid ``kind``."""
+    present = text.notna().to_numpy()
+    if kind == "str":
+        return present & text.str.contains(_BAD_TEXT, regex=True, na=False).to_numpy()
+    pattern = _HEX_TEXT if kind == "hex" else _FLOAT_TEXT
+    fits = text.str.fullmatch(pattern, na=True).to_numpy(dtype=bool)
+    bad = present & ~fits
+    if kind in ("float", "int"):
+        numbers = pd.to_numeric(text.where(fits & present), errors="coerce").to_numpy(dtype=float)
+        with np.errstate(invalid="ignore"):
+            bad |= present & fits & ~np.isfinite(numbers)
+            if kind == "int":
+                bad |= present & fits & np.isfinite(numbers) & (numbers % 1 != 0)
+    return bad
+
+
+def _str_problem(text: str) -> str:
+    if '"' in text:
+        return (f"{excerpt(text)} holds a double quote; quotes are not special in this format and are not part "
+                "of a value: remove it")
+    return f"{excerpt(text)} holds a control character"
+
+
+# ----------------------------------------------------------------------------------------------- the reader
+
+
+@dataclass
+class _Layout:
+    path: Path
+    handle: BinaryIO
+    header: list[str]
+    dialect: Dialect
+    data_start: int
+    index: dict[str, int]
+
+
+def _layout(path: Path, wanted: dict[str, Kind], required: list[str], sep: str | None | Literal["auto"]) -> _Layout:
+    """Open the file, check it is text, read its header, find the separator and the wanted columns."""
+    handle = _open_source(path)
+    try:
+        return _read_layout(path, handle, wanted, required, sep)
+    except BaseException:
+        handle.close()
+        raise
+
+
+def _read_layout(path: Path, handle: BinaryIO, wanted: dict[str, Kind], required: list[str],
+                 sep: str | None | Literal["auto"]) -> _Layout:
+    head = handle.read(_SNIFF)
+    encoding = "UTF-8"
+    start = 0
+    if head.startswith(_UTF8_BOM):
+        start, encoding = len(_UTF8_BOM), "UTF-8 (byte-order mark removed)"
+    elif head[:2] in _UTF16_BOMS:
+        handle = _utf16_to_utf8(path, handle)
+        head = handle.read(_SNIFF)
+        if head.startswith(_UTF8_BOM):
+            start = len(_UTF8_BOM)
+        encoding = "UTF-16 (converted to UTF-8)"
+    if b"\0" in head:
+        raise _nul_error(path, head, head.index(b"\0"))
+    end = head.find(b"\n", start)
+    if end < 0:
+        if b"\r" in head:
+            raise InputError(path, 1, None, "lines end in a lone carriage return (CR, classic Mac OS); save the file "
+                             "with LF or CR LF line ends")
+        if len(head) == _SNIFF:
+            raise InputError(path, 1, None, f"no line end in the first {_SNIFF // 1024} KiB: not a table with a "
+                             "header line")
+        raise InputError(path, 2, None, "no data rows after the header")
+    header_bytes = head[start:end]
+    if header_bytes.endswith(b"\r"):
+        header_bytes = header_bytes[:-1]
+    if b"\r" in header_bytes:
+        raise InputError(path, 1, None, "a carriage return (CR) inside the header line; lines must end in LF or "
+                         "CR LF (classic Mac OS line ends?)")
+    try:
+        header_text = header_bytes.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(path, 1, None, f"byte 0x{header_bytes[exc.start]:02x} of the header is not UTF-8 text; "
+                         "save the file as UTF-8") from None
+    if not header_text.strip():
+        raise InputError(path, 1, None, "the header line is blank")
+
+    data_start = end + 1
+    samples = _sample_lines(head, data_start, whole=len(head) < _SNIFF)
+    if not samples and not _has_data(handle, data_start):
+        raise InputError(path, 2, None, "no data rows after the header")
+    chosen = _detect_separator(path, header_text, samples) if sep == "auto" else sep
+    header = [name.strip().strip("\ufeff").strip() for name in _split(header_text, chosen)]
+    folded: dict[str, list[int]] = {}
+    for i, name in enumerate(header):
+        folded.setdefault(name.casefold(), []).append(i)
+    index: dict[str, int] = {}
+    for name in wanted:
+        hits = folded.get(name.strip().casefold(), [])
+        if len(hits) > 1:
+            spelled = ", ".join(f"{header[i]!r} (field {i + 1})" for i in hits)
+            raise InputError(path, 1, name, f"{len(hits)} columns match this name: {spelled}; names are matched "
+                             "ignoring case, so rename or remove one")
+        if hits:
+            index[name] = hits[0]
+    missing = [name for name in required if name not in index]
+    if missing:
+        found = ", ".join(name for name in header if name)
+        if len(found) > 300:
+            found = found[:300] + f"… ({len(header)} columns)"
+        raise InputError(path, 1, missing[0], f"required column {missing[0]!r} is missing (columns found, "
+                         f"{SEPARATOR_NAMES[chosen]}-separated: {found})")
+    dialect = Dialect(chosen, encoding)
+    return _Layout(path, handle, header, dialect, data_start, index)
+
+
+def _sample_lines(head: bytes, start: int, whole: bool, count: int = 5) -> list[tuple[int, str]]:
+    """Up to ``count`` non-blank data lines of the sniffed head (``whole``: the head is the whole file)."""
+    samples = []
+    lines = head[start:].split(b"\n")
+    if not whole:
+        lines = lines[:-1]  # the last piece may be cut
+    for k, raw in enumerate(lines):
+        text = raw.rstrip(b"\r").decode("utf-8", errors="replace")
+        if text.strip():
+            samples.append((k + 2, text))
+            if len(samples) == count:
+                break
+    return samples
+
+
+def _has_data(handle: BinaryIO, start: int) -> bool:
+    """Whether anything but blanks follows byte ``start``."""
+    handle.seek(start)
+    while block := handle.read(1 << 20):
+        if block.strip():
+            return True
+    return False
+
+
+def peek_header(path: Path | str) -> list[str]:
+    """The header names of a table file (BOM removed, separator detected, blanks stripped), nothing else read."""
+    layout = _layout(Path(path), {}, [], "auto")
+    layout.handle.close()
+    return layout.header
 
 
 def read_table(
     path: Path | str,
     wanted: dict[str, Kind],
-    required: set[str],
-    sep: str = "\t",
+    required: Iterable[str],
+    sep: str | None | Literal["auto"] = "auto",
+    short_rows: Literal["error", "keep"] = "error",
 ) -> Table:
-    """Read the ``wanted`` columns (name -> kind) of a header-led table.
+    """Read the ``wanted`` columns (name -> kind; names matched ignoring case) of a header-led text table.
 
-    * A missing required column, a cell that is not of its kind, an empty cell in any column that is read,
-      or a row with too many fields raises :class:`InputError` naming file, line and column.
-    * A truncated last line (fewer fields than the header, as when a logger loses power) is dropped
-      with a notice; blank lines are dropped with a notice.
+    * A missing required column, a cell that is not of its kind, an empty cell in a column that is read, a
+      non-finite number, or a line with more fields than the header raises :class:`InputError` naming file,
+      line and column.
+    * A line with fewer fields than the header: the last line is dropped with a notice; any other is an
+      error. With ``short_rows="keep"`` every such line is kept and marked in ``Table.incomplete``.
+    * Blank lines are dropped (with a notice when they are not at the end).
     * Optional columns that are absent are simply not in ``Table.columns``.
     """
     path = Path(path)
-    header = _read_header(path, sep)
-    missing = [name for name in required if name not in header]
-    if missing:
-        raise InputError(
-            path, 1, missing[0],
-            f"required column {missing[0]!r} is missing (columns found: {', '.join(h for h in header if h)})",
-        )
-    present = [name for name in wanted if name in header]
-    dtypes = {name: (np.float64 if wanted[name] in ("float", "int") else str) for name in present}
-    notices: list[InputNotice] = []
+    ordered_required = [name for name in wanted if name in set(required)]
+    layout = _layout(path, wanted, ordered_required, sep)
     try:
-        frame = pd.read_csv(path, sep=sep, usecols=present, dtype=dtypes, skip_blank_lines=False,
-                            skipinitialspace=True, engine="c", keep_default_na=False,
-                            na_values={n: [""] for n in present})
-    except (ValueError, pd.errors.ParserError) as exc:
-        message = str(exc)
-        for name in present:
-            located = _locate_bad_cell(path, sep, name, wanted[name])
-            if located is not None:
-                raise located from None
-        raise InputError(path, None, None, f"cannot parse the table: {message}") from None
+        return _read_body(layout, wanted, short_rows)
+    finally:
+        layout.handle.close()
+
+
+def _read_body(layout: _Layout, wanted: dict[str, Kind], short_rows: str) -> Table:
+    path, header, index = layout.path, layout.header, layout.index
+    sep = layout.dialect.separator
+    present = [name for name in wanted if name in index]
+    usecols = sorted(index[name] for name in present)
+    dtypes = {index[name]: (np.float64 if wanted[name] in ("float", "int") else str) for name in present}
+    layout.handle.seek(layout.data_start)
+    scanner = _Scanner(layout.handle, path, sep, header, layout.data_start)
+    try:
+        frame = pd.read_csv(scanner, sep=r"\s+" if sep is None else sep, header=None, names=list(range(len(header))),
+                            usecols=usecols, dtype=dtypes, quoting=csv.QUOTE_NONE, skip_blank_lines=False,
+                            skipinitialspace=True, keep_default_na=False, na_values=[""], engine="c",
+                            index_col=False, encoding="utf-8")
+    except _AbortError:
+        raise scanner.problem from None  # type: ignore[misc]
+    except (ValueError, pd.errors.ParserError, UnicodeDecodeError, OverflowError) as exc:
+        if scanner.problem is not None:
+            raise scanner.problem from None
+        located = _locate_bad_cell(layout, wanted, present)
+        if located is not None:
+            raise located from None
+        raise InputError(path, None, None, f"cannot parse the table: {excerpt(str(exc), 200)}") from None
+    if not scanner.finished:  # pandas stopped before the end (cannot happen with the C parser; be sure)
+        while scanner.read(_BLOCK):
+            pass
+    if len(frame) != scanner.n_lines:
+        raise RuntimeError(f"{path}: pandas read {len(frame)} rows, the line scan found {scanner.n_lines}")
 
     lines = np.arange(2, len(frame) + 2)
-    blank = frame.isna().all(axis=1).to_numpy() if present else np.zeros(len(frame), bool)
-    n_fields, _ = _last_line_field_count(path, sep)
-    keep = ~blank
-    if blank.any():
-        interior = lines[blank][lines[blank] < lines[~blank].max(initial=0)]
+    keep = np.ones(len(frame), dtype=bool)
+    notices: list[InputNotice] = []
+    blank = np.asarray(scanner.blank, dtype=int)
+    if len(blank):
+        keep[blank - 2] = False
+    if not keep.any():
+        raise InputError(path, 2, None, "no data rows after the header")
+    last_line = int(lines[keep][-1])
+    if len(blank):
+        interior = blank[blank < last_line]
         if len(interior):
             notices.append(InputNotice(path, interior.tolist(), None, "blank lines skipped"))
-    if n_fields < len(header) and keep.any():
-        last = int(np.flatnonzero(keep)[-1])
-        keep[last] = False
-        notices.append(InputNotice(path, [int(lines[last])], None,
-                                   f"truncated last line ({n_fields} of {len(header)} fields) dropped"))
-    frame = frame[keep]
-    lines = lines[keep]
-    if len(frame) == 0:
+
+    incomplete = np.zeros(len(frame), dtype=bool)
+    n_fields = np.zeros(len(frame), dtype=int)
+    for line, fields, start in scanner.short:
+        text, _ = _line_at(layout.handle, start)
+        other = [s for s in (*SEPARATORS, None) if s != sep and len(_split(text, s)) == len(header)]
+        missing_column = _field_name(header, fields)
+        if other:
+            raise InputError(path, line, missing_column, f"{fields} of {len(header)} fields with the header's "
+                             f"{SEPARATOR_NAMES[sep]} separator, but {len(header)} with "
+                             f"{' or '.join(SEPARATOR_NAMES[s] for s in other)}: use one separator throughout")
+        if short_rows == "keep":
+            incomplete[line - 2] = True
+            n_fields[line - 2] = fields
+        elif line == last_line:
+            keep[line - 2] = False
+            notices.append(InputNotice(path, [line], None, f"truncated last line ({fields} of {len(header)} "
+                                       "fields) dropped"))
+        else:
+            raise InputError(path, line, missing_column, f"the line is cut short: {fields} of {len(header)} fields "
+                             f"(from column {missing_column!r} on nothing is there)")
+    if not keep.any():
         raise InputError(path, 2, None, "no complete data rows after the header")
 
     columns: dict[str, np.ndarray] = {}
+    rows = np.flatnonzero(keep)
+    complete = ~incomplete[rows]
     for name in present:
-        values = frame[name].to_numpy()
         kind = wanted[name]
-        # every column that is read is used: an empty cell is never silently a NaN
-        empty = pd.isna(values) if kind in ("float", "int") else (pd.isna(values) | (values == ""))
+        spelled = header[index[name]]
+        values = frame[index[name]].to_numpy()[rows]
+        # every column that is read is used: an empty cell is never silently a NaN (cut-short rows excepted)
+        empty = pd.isna(values) & complete
+        if kind == "str":
+            empty |= (values == "") & complete
         if np.any(empty):
-            index = int(np.argmax(empty))
-            raise InputError(path, int(lines[index]), name, "empty cell")
+            row = int(np.argmax(empty))
+            raise InputError(path, int(lines[rows[row]]), spelled, "empty cell")
         if kind == "hex":
             parsed, bad = parse_hex(np.where(pd.isna(values), "0", values))
             if bad.any():
-                index = int(np.argmax(bad))
-                raise InputError(path, int(lines[index]), name, f"cannot read {values[index]!r} as hexadecimal")
+                row = int(np.argmax(bad))
+                raise InputError(path, int(lines[rows[row]]), spelled, _cell_problem(str(values[row]), kind, sep))
             columns[name] = parsed
-        elif kind == "int":
-            if np.any(np.isfinite(values) & (values % 1 != 0)):
-                index = int(np.argmax(np.isfinite(values) & (values % 1 != 0)))
-                raise InputError(path, int(lines[index]), name, f"{values[index]!r} is not a whole number")
-            columns[name] = values.astype(np.float64)
-        elif kind == "float":
-            columns[name] = values.astype(np.float64)
+        elif kind in ("float", "int"):
+            values = values.astype(np.float64)
+            infinite = np.isinf(values)
+            if infinite.any():
+                row = int(np.argmax(infinite))
+                line = int(lines[rows[row]])
+                offset = _line_offset(layout.handle, layout.data_start, 2, line)
+                text, whole = _line_at(layout.handle, offset, 1 << 20) if offset is not None else ("", True)
+                fields = _split(text, sep)
+                cell = fields[index[name]] if index[name] < len(fields) else str(values[row])
+                if not whole and index[name] >= len(fields) - 1:
+                    cell += "…"  # cut at 1 MiB: the excerpt says "more than"
+                raise InputError(path, line, spelled, _cell_problem(cell, kind, sep))
+            if kind == "int":
+                with np.errstate(invalid="ignore"):
+                    fractional = np.isfinite(values) & (values % 1 != 0)
+                if fractional.any():
+                    row = int(np.argmax(fractional))
+                    raise InputError(path, int(lines[rows[row]]), spelled, f"{values[row]!r} is not a whole number")
+            columns[name] = values
         else:
-            columns[name] = np.asarray(values, dtype=str)
-    return Table(path=path, header=header, columns=columns, lines=lines, notices=notices)
+            text = pd.Series(values, dtype=object)
+            bad = text.str.contains(_BAD_TEXT, regex=True, na=False).to_numpy()
+            if bad.any():
+                row = int(np.argmax(bad))
+                raise InputError(path, int(lines[rows[row]]), spelled, _str_problem(str(values[row])))
+            columns[name] = np.asarray(text.fillna("").to_numpy(), dtype=str)
+    return Table(path=path, header=header, columns=columns, lines=lines[rows], notices=notices,
+                 dialect=layout.dialect, names={name: header[index[name]] for name in present},
+                 incomplete=incomplete[rows], fields=n_fields[rows])
+
+
+def _locate_bad_cell(layout: _Layout, wanted: dict[str, Kind], present: list[str]) -> InputError | None:
+    """Diagnostic pass (pandas refused a cell): the earliest cell of a wanted column that is not its kind."""
+    path, header, index = layout.path, layout.header, layout.index
+    sep = layout.dialect.separator
+    layout.handle.seek(layout.data_start)
+    usecols = sorted(index[name] for name in present)
+    reader = pd.read_csv(layout.handle, sep=r"\s+" if sep is None else sep, header=None,
+                         names=list(range(len(header))), usecols=usecols, dtype=str, quoting=csv.QUOTE_NONE,
+                         skip_blank_lines=False, skipinitialspace=True, keep_default_na=False, na_values=[""],
+                         engine="c", index_col=False, encoding="utf-8", encoding_errors="replace",
+                         chunksize=100_000)
+    first_row = 0
+    for chunk in reader:
+        best: tuple[int, int, str] | None = None
+        for name in sorted(present, key=lambda n: index[n]):
+            bad = _bad_cells(chunk[index[name]], wanted[name])
+            if bad.any():
+                row = int(np.argmax(bad))
+                if best is None or row < best[0]:
+                    best = (row, index[name], name)
+        if best is not None:
+            row, column, name = best
+            text = str(chunk[column].iloc[row])
+            kind = wanted[name]
+            message = _str_problem(text) if kind == "str" else _cell_problem(text, kind, sep)
+            return InputError(path, first_row + row + 2, header[column], message)
+        first_row += len(chunk)
+    return None
