@@ -119,4 +119,4 @@ def test_attitude_command(tmp_path, rig):
         limit = 2.0 if method == "complementary" else 0.3
         assert (np.sqrt(np.mean(error**2, axis=0)) < limit).all(), method
     result = runner.invoke(app, ["attitude", "--imu", str(path), "--method", "nope"])
-    assert result.exit_code == 2 and "unknown attitude method" in result.output
+    assert result.exit_code == 2 and "'nope' is not one of" in result.output and "'mekf'" in result.output

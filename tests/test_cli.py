@@ -534,10 +534,10 @@ def test_batch_with_an_internal_error_exits_3(sim_flight, tmp_path, monkeypatch)
     def buggy(*args, **kwargs):
         raise ZeroDivisionError("a planted bug")
 
-    def sequential(jobs, output_root, method=None, scheduler=None, workers=2, on_done=None):
+    def sequential(jobs, output_root, method=None, scheduler=None, workers=2, on_done=None, exports=()):
         rows = []
         for job in jobs:
-            rows.append(georef.batch.process_flight(job, str(output_root), method))
+            rows.append(georef.batch.process_flight(job, str(output_root), method, exports))
             if on_done:
                 on_done(rows[-1])
         return pd.DataFrame(rows, columns=georef.batch.SUMMARY_COLUMNS)

@@ -715,8 +715,7 @@ def _cell(value: Any) -> str:
 @_user_errors
 def info(
     pos: Annotated[Path, typer.Argument(help="POS unit log (POS.txt).")],
-    config: Annotated[Path | None, typer.Option("--config", help="flight.toml: its [pos_columns] remapping and "
-                                                                 "[gnss] gnss_rate_hz are used.")] = None,
+    config: ConfigFile = None,
     gnss_rate: Annotated[float | None, typer.Option(help="GNSS fix rate in Hz, if known (default: the config's, "
                                                          "else 1).")] = None,
 ) -> None:

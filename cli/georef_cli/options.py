@@ -68,7 +68,8 @@ Quiet = Annotated[bool, typer.Option(
     "--quiet", "-q", help="Print nothing but errors (and failed quality checks, for the commands that run them).")]
 Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Also list every input notice.")]
 ConfigFile = Annotated[Path | None, typer.Option(
-    "--config", help="flight.toml with any of these settings; command-line options win.")]
+    "--config", help="flight.toml with the flight's settings (docs/formats.md: its sections and keys); "
+                     "command-line options win.")]
 SummaryJson = Annotated[Path | None, typer.Option(
     "--summary-json", help="Also write a machine-readable summary (JSON: the figures, the QC verdict with its "
                            "checks, the outputs written, the georef version; docs/qc.md) to this file; '-' "
