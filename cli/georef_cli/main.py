@@ -545,8 +545,14 @@ def fuse(
         mag, autopilot_yaw = read_imu_heading_sources(imu)
         fixes = read_gnss_csv(gnss)
         step(f"fusing ({method})")
-        nav = solve_ins(InsInputs(time=time_s, gyro=gyro, accel=accel, gnss=fixes, source=str(imu), mag=mag,
-                                  autopilot_yaw=autopilot_yaw), cfg, smooth=method == "rts")
+        inputs = InsInputs(time=time_s, gyro=gyro, accel=accel, gnss=fixes, source=str(imu), mag=mag,
+                           autopilot_yaw=autopilot_yaw)
+        if method == "graph":
+            from georef.fusion.graph import solve_graph_inputs
+
+            nav = solve_graph_inputs(inputs, cfg)
+        else:
+            nav = solve_ins(inputs, cfg, smooth=method == "rts")
         step("writing trajectory")
         write_target(output, lambda path: write_trajectory_csv(nav, path))
     verdict = assess(nav, cfg=cfg)

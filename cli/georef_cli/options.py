@@ -21,7 +21,7 @@ from georef.config import METHODS
 STDOUT = "-"
 
 #: the methods of ``georef fuse`` (full-state filters on generic inputs)
-FUSE_METHODS = ("rts", "ekf")
+FUSE_METHODS = ("rts", "ekf", "graph")
 #: the filters of ``georef attitude``
 ATTITUDE_METHODS = ("complementary", "kf", "mekf", "ukf")
 #: the ``--vehicle`` values (non-holonomic constraints)
@@ -79,7 +79,7 @@ _METHODS_HELP = ("rts (full-state EKF + RTS smoother; default), ekf (the forward
                  "per-axis method) or graph (GTSAM factor-graph smoother)")
 ProcessMethod = Annotated[Method | None, method_option(f"Fusion method: {_METHODS_HELP}.")]  # type: ignore[valid-type]
 FuseMethod = Annotated[FuseMethodChoice, method_option(  # type: ignore[valid-type]
-    "rts (EKF + smoother) or ekf (forward filter only).")]
+    "rts (EKF + smoother), ekf (forward filter only) or graph (GTSAM factor-graph smoother started from rts).")]
 BatchMethod = Annotated[Method | None, method_option(  # type: ignore[valid-type]
     f"Override every flight's method (default: each flight's flight.toml): {_METHODS_HELP}.")]
 AttitudeMethod = Annotated[AttitudeMethodChoice, method_option(  # type: ignore[valid-type]
