@@ -91,6 +91,9 @@ class ProcessingConfig:
     graph_solver: str = "lm"
     #: factor graph: Cauchy robust kernel on the GNSS factors (False: plain Gaussian)
     graph_robust: bool = True
+    #: [m] 1-sigma of the given GNSS lever arm as the graph's prior on its lever-arm variable. None: 0.05 m (a
+    #: taped installation) when a lever arm is given (non-zero), else estimated freely (10 m)
+    lever_arm_gnss_sigma: float | None = None
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -125,7 +128,7 @@ class ProcessingConfig:
 #: TOML section -> keys it may hold (all map onto ProcessingConfig fields of the same name).
 _SECTIONS = {
     "processing": {"method", "attitude_source"},
-    "mounting": {"lever_arm_gnss", "lever_arm_camera", "boresight"},
+    "mounting": {"lever_arm_gnss", "lever_arm_camera", "boresight", "lever_arm_gnss_sigma"},
     "gnss": {"gnss_sigma", "gnss_rate_hz", "gnss_latency"},
     "camera": {"camera_utc_offset", "camera_time_offset"},
     "output": {"crs", "height", "vertical_crs", "image_names", "odm_angles"},

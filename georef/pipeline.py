@@ -138,7 +138,9 @@ def solution_figures(nav: NavSolution, cfg: ProcessingConfig) -> dict[str, objec
     * ``gnss_sigma_fitted_m``: the GNSS sigmas north, east, up the fitted noise model uses [m]
       (sqrt(r_scale) times ``cfg.gnss_sigma``), ``vrw_m_s_sqrt_h`` the horizontal velocity random walk
       [m/s/sqrt(h)], ``arw_deg_sqrt_h`` the angle random walk about north/east [deg/sqrt(h)];
-    * ``ground_vehicle``: non-holonomic constraints applied.
+    * ``ground_vehicle``: non-holonomic constraints applied;
+    * ``graph_lever_arm_m``, ``graph_lever_arm_sigma_m`` (``--method graph`` only): the GNSS lever arm [m, body x
+      forward, y right, z down] estimated with the trajectory, and its marginal 1-sigma.
     """
     diagnostics = nav.diagnostics
     if diagnostics is None:
@@ -166,6 +168,9 @@ def solution_figures(nav: NavSolution, cfg: ProcessingConfig) -> dict[str, objec
             if len(rows) > 1 and nav.time[rows[-1]] > nav.time[rows[0]]:
                 slope = np.polyfit(nav.time[rows] - nav.time[rows[0]], d, 1)[0]
                 figures["unit_yaw_drift_deg_per_min"] = float(np.degrees(slope) * 60.0)
+    if "graph_lever_arm_m" in nav.info:  # --method graph: the lever arm estimated with the trajectory
+        figures["graph_lever_arm_m"] = tuple(float(v) for v in nav.info["graph_lever_arm_m"])
+        figures["graph_lever_arm_sigma_m"] = tuple(float(v) for v in nav.info["graph_lever_arm_sigma_m"])
     return figures
 
 

@@ -146,3 +146,22 @@ def test_fuse_accepts_the_graph(tmp_path):
 
     traj = pd.read_csv(tmp_path / "traj.csv")
     assert len(traj) > 0 and traj["lat"].notna().mean() > 0.9
+
+
+def test_graph_estimates_the_lever_arm_it_is_not_told(flight_dir, flight_defaults):
+    """The lever arm is a variable of the graph: not told (zeros, free prior), the estimate lands within 3 of its
+    marginal sigmas of the simulated one on every axis; told with the default prior (0.05 m), it stays there and
+    its sigma is no larger than the prior. (Coverage over many flights: docs/method-graph.md.)"""
+    from georef.fusion.graph import solve_graph
+    from georef.io.pos import read_pos
+
+    flight, paths = flight_dir
+    log = read_pos(paths["POS.txt"])
+    truth = np.asarray(flight.config.lever_arm_gnss_m)
+    free = solve_graph(log, flight_defaults.updated(lever_arm_gnss=(0.0, 0.0, 0.0)))
+    estimate, sigma = free.info["graph_lever_arm_m"], free.info["graph_lever_arm_sigma_m"]
+    assert (sigma > 0.05).all() and (sigma < 2.0).all()
+    assert (np.abs(estimate - truth) < 3.0 * sigma).all(), (estimate, sigma)
+    told = solve_graph(log, flight_defaults)
+    assert (np.abs(told.info["graph_lever_arm_m"] - truth) < 0.1).all()
+    assert (told.info["graph_lever_arm_sigma_m"] <= 0.05 + 1e-9).all()

@@ -133,9 +133,18 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
             pim.integrateMeasurement(0.5 * (accel[r] + accel[r + 1]), 0.5 * (gyro[r] + gyro[r + 1]), dt)
         factors_at.setdefault(k, []).append(gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k),
                                                                     pim))
-    # GNSS antenna fixes, moved to the keyframe row's time along the velocity
-    sigma = np.asarray(cfg.gnss_sigma)
+    # GNSS antenna fixes, moved to the keyframe row's time along the velocity, with the sigmas the EKF + RTS
+    # fitted to this flight (the configured ones scaled by the fitted variance factors)
+    sigma = np.asarray(cfg.gnss_sigma) * np.sqrt([noise.r_scale_h, noise.r_scale_h, noise.r_scale_v])
     base = gtsam.noiseModel.Diagonal.Sigmas(sigma)
+    # the GNSS lever arm [m, body] as a variable, estimated jointly with the trajectory
+    lever_key = gtsam.symbol("l", 0)
+    lever_given = np.asarray(cfg.lever_arm_gnss, float)
+    lever_prior = _lever_arm_prior_sigma(cfg)
+    calibration = rts.diagnostics.calibration
+    values.insert(lever_key, np.asarray(calibration.lever_arm if calibration is not None else lever_given, float))
+    factors_at[0].append(gtsam.PriorFactorPoint3(lever_key, lever_given,
+                                                 gtsam.noiseModel.Isotropic.Sigma(3, lever_prior)))
     robust = (gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(CAUCHY_K), base)
               if cfg.graph_robust else base)
     fix_of_key = {}
@@ -147,8 +156,7 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
         fix_of_key[k] = index
         r_ant = geodetic_to_ecef(np.radians(gnss.lat_deg[index]), np.radians(gnss.lon_deg[index]), gnss.height[index])
         z = to_plane(r_ant) + v_t[row] * (t[row] - gnss.time[index])
-        factors_at.setdefault(k, []).append(gtsam.GPSFactorArm(X(k), z, np.asarray(cfg.lever_arm_gnss, float),
-                                                               robust))
+        factors_at.setdefault(k, []).append(gtsam.GPSFactorArmCalib(X(k), lever_key, z, robust))
     aiding = bool(cfg.unit_aiding and inputs.unit_rpy is not None)
     if aiding:
         _add_unit_attitude(gtsam, U, X, inputs.unit_rpy, rts, t, key_rows, C_n_t_rows, cfg, values, factors_at)
@@ -168,6 +176,8 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
             new_values.insert(B(k), values.atConstantBias(B(k)))
             if aiding:
                 new_values.insert(U(k), values.atVector(U(k)))
+            if k == 0:
+                new_values.insert(lever_key, values.atPoint3(lever_key))
             isam.update(new_graph, new_values)
         isam.update()
         result = isam.calculateEstimate()
@@ -215,11 +225,26 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
     # the graph against the RTS it started from, in units of the graph's own horizontal sigma at each keyframe:
     # both smoothers carry the same information, so a separation of several sigma means one of them went wrong
     separation = np.hypot(d_pos[:, 0], d_pos[:, 1]) / np.sqrt(pos_var[:, 0] + pos_var[:, 1])
-    info.update({"graph_rts_separation_sigma": separation, "keyframes": n_keys,
+    info.update({"graph_lever_arm_m": np.asarray(result.atPoint3(lever_key), float),
+                 "graph_lever_arm_sigma_m": np.sqrt(np.diag(marginals.marginalCovariance(lever_key))),
+                 "graph_lever_arm_prior_sigma_m": lever_prior,
+                 "graph_rts_separation_sigma": separation, "keyframes": n_keys,
                  "graph_error_initial": graph.error(values), "graph_error_final": graph.error(result)})
     return NavSolution(method="graph", time=t, r_e=r_e, v_e=v_e, lat=lat, lon=lon, height=height, roll=roll,
                        pitch=pitch, yaw=yaw, pos_var_n=pos_var_rows, att_sigma=att_sigma, valid=valid, gnss=rts.gnss,
                        info=info, att_cov_n=att_cov_rows, diagnostics=rts.diagnostics)
+
+
+LEVER_ARM_GIVEN_SIGMA = 0.05  # m, a lever arm taped on the installation
+LEVER_ARM_FREE_SIGMA = 10.0  # m, no lever arm given: only keeps the variable determinate
+
+
+def _lever_arm_prior_sigma(cfg: ProcessingConfig) -> float:
+    """1-sigma [m] of the prior on the graph's lever-arm variable (``cfg.lever_arm_gnss_sigma``, else 0.05 m for
+    a given lever arm and a free estimate without one)."""
+    if cfg.lever_arm_gnss_sigma is not None:
+        return float(cfg.lever_arm_gnss_sigma)
+    return LEVER_ARM_GIVEN_SIGMA if any(v != 0.0 for v in cfg.lever_arm_gnss) else LEVER_ARM_FREE_SIGMA
 
 
 def _key_rows(t: np.ndarray, valid_rows: np.ndarray, fix_rows: np.ndarray) -> np.ndarray:
