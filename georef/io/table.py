@@ -56,7 +56,8 @@ _LINE_PEEK = 4096         # bytes of a line read back to explain it
 
 _UTF8_BOM = b"\xef\xbb\xbf"
 _UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
-_FLOAT_TEXT = r"\s*[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\s*"
+# unambiguous (no nested or overlapping repeats), so a 5 MB cell is matched in linear time
+_FLOAT_TEXT = r"\s*[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\s*"
 _HEX_TEXT = r"\s*(?:0[xX])?[0-9a-fA-F]{1,16}\s*"
 _BAD_TEXT = re.compile(r'["\x00-\x08\x0a-\x1f\x7f]')
 _KIND_WORDS = {"float": "a number", "int": "a whole number", "hex": "a hexadecimal number"}
@@ -194,11 +195,55 @@ def _read_pipe(path: Path) -> bytes:
     return b"".join(parts)
 
 
-def _open_source(path: Path) -> BinaryIO:
-    """A seekable binary handle on ``path``; folders, devices, sockets and empty files are refused.
+@dataclass(frozen=True)
+class InMemory:
+    """The bytes of an input that can be read only once (a pipe), with the path they came from (for messages)."""
+
+    path: Path
+    data: bytes = field(repr=False)
+
+    def __str__(self) -> str:
+        return str(self.path)
+
+
+Source = Path | str | InMemory
+
+
+def source_path(source: Source) -> Path:
+    """The path of a source, for messages."""
+    return source.path if isinstance(source, InMemory) else Path(source)
+
+
+def snapshot(source: Source) -> Path | InMemory:
+    """A source that can be read more than once: a named pipe (FIFO) read into memory, any other path as it is.
+
+    Use it before reading one input twice (e.g. its header to tell its format, then its table).
+    """
+    if isinstance(source, InMemory):
+        return source
+    path = Path(source)
+    try:
+        is_pipe = stat.S_ISFIFO(os.stat(path).st_mode)
+    except OSError:
+        return path
+    if not is_pipe:
+        return path
+    data = _read_pipe(path)
+    if not data:
+        raise InputError(path, 1, None, "the pipe gave no data (no header line)")
+    return InMemory(path, data)
+
+
+def _open_source(source: Source) -> BinaryIO:
+    """A seekable binary handle on ``source``; folders, devices, sockets and empty files are refused.
 
     A named pipe (FIFO, e.g. ``<(zcat POS.txt.gz)``) can be read only once, so it is read into memory.
     """
+    if isinstance(source, InMemory):
+        if not source.data:
+            raise InputError(source.path, 1, None, "the file is empty (no header line)")
+        return io.BytesIO(source.data)
+    path = Path(source)
     try:
         st = os.stat(path)
     except FileNotFoundError:
@@ -592,9 +637,11 @@ class _Layout:
     index: dict[str, int]
 
 
-def _layout(path: Path, wanted: dict[str, Kind], required: list[str], sep: str | None | Literal["auto"]) -> _Layout:
+def _layout(source: Source, wanted: dict[str, Kind], required: list[str],
+            sep: str | None | Literal["auto"]) -> _Layout:
     """Open the file, check it is text, read its header, find the separator and the wanted columns."""
-    handle = _open_source(path)
+    path = source_path(source)
+    handle = _open_source(source)
     try:
         return _read_layout(path, handle, wanted, required, sep)
     except BaseException:
@@ -693,15 +740,18 @@ def _has_data(handle: BinaryIO, start: int) -> bool:
     return False
 
 
-def peek_header(path: Path | str) -> list[str]:
-    """The header names of a table file (BOM removed, separator detected, blanks stripped), nothing else read."""
-    layout = _layout(Path(path), {}, [], "auto")
+def peek_header(source: Source) -> list[str]:
+    """The header names of a table file (BOM removed, separator detected, blanks stripped), nothing else read.
+
+    A pipe is consumed: pass a :func:`snapshot` of it when the table is to be read afterwards.
+    """
+    layout = _layout(source, {}, [], "auto")
     layout.handle.close()
     return layout.header
 
 
 def read_table(
-    path: Path | str,
+    path: Source,
     wanted: dict[str, Kind],
     required: Iterable[str],
     sep: str | None | Literal["auto"] = "auto",
@@ -717,7 +767,6 @@ def read_table(
     * Blank lines are dropped (with a notice when they are not at the end).
     * Optional columns that are absent are simply not in ``Table.columns``.
     """
-    path = Path(path)
     ordered_required = [name for name in wanted if name in set(required)]
     layout = _layout(path, wanted, ordered_required, sep)
     try:
