@@ -71,10 +71,20 @@ _UNITS = {**{role: limit.unit for role, limit in LIMITS.items()}}
 _ANGLES = {"roll", "yaw"}
 
 
-def check_ranges(path: Path, data: Mapping[str, np.ndarray], lines: np.ndarray, names: Mapping[str, str]) -> None:
-    """Raise :class:`InputError` at the first value outside its :data:`LIMITS` interval (earliest line)."""
+#: the same limits for the generic ``imu.csv`` and ``gnss.csv`` (their units: rad/s, m/s^2, deg, m)
+GENERIC_LIMITS: dict[str, Limit] = {
+    **{f"gyro_{a}": Limit(-np.radians(2000.0), np.radians(2000.0), "rad/s", _RATE.why) for a in "xyz"},
+    **{f"acc_{a}": _FORCE for a in "xyz"},
+    "yaw": LIMITS["yaw"], "roll": LIMITS["roll"], "pitch": LIMITS["pitch"],
+    "height": LIMITS["alt"],
+}
+
+
+def check_ranges(path: Path, data: Mapping[str, np.ndarray], lines: np.ndarray, names: Mapping[str, str],
+                 limits: Mapping[str, Limit] = LIMITS) -> None:
+    """Raise :class:`InputError` at the first value outside its interval in ``limits`` (earliest line)."""
     first: tuple[int, str] | None = None
-    for role, limit in LIMITS.items():
+    for role, limit in limits.items():
         values = data.get(role)
         if values is None or not len(values):
             continue
@@ -85,7 +95,7 @@ def check_ranges(path: Path, data: Mapping[str, np.ndarray], lines: np.ndarray, 
                 first = (row, role)
     if first is not None:
         row, role = first
-        limit = LIMITS[role]
+        limit = limits[role]
         value = float(data[role][row])
         raise InputError(path, int(lines[row]), names.get(role, role),
                          f"{value:.6g} {limit.unit} is outside the plausible range {limit.low:g}..{limit.high:g} "
