@@ -33,7 +33,7 @@ import io
 import os
 import re
 import stat
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO, Literal
@@ -364,7 +364,9 @@ def _detect_separator(path: Path, header_text: str, samples: list[tuple[int, str
 
 
 class _AbortError(Exception):
-    """Raised inside pandas' read to stop it; the scanner's ``problem`` says why."""
+    """Raised inside pandas' read to stop it; ``problem`` (set by :func:`_parse`) says why."""
+
+    problem: InputError
 
 
 class _Scanner(io.RawIOBase):
@@ -778,25 +780,58 @@ def read_table(
         layout.handle.close()
 
 
+def _read_csv(source: BinaryIO, layout: _Layout, usecols: list[int] | None, dtypes: dict[int, type],
+              **options: object) -> pd.DataFrame:
+    sep = layout.dialect.separator
+    return pd.read_csv(source, sep=r"\s+" if sep is None else sep, header=None, names=list(range(len(layout.header))),
+                       usecols=usecols, dtype=dtypes, quoting=csv.QUOTE_NONE, skip_blank_lines=False,
+                       skipinitialspace=True, keep_default_na=False, na_values=[""], engine="c", index_col=False,
+                       encoding="utf-8", **options)
+
+
+def _parse(layout: _Layout, usecols: list[int], dtypes: dict[int, type]) -> tuple[pd.DataFrame, _Scanner]:
+    """pandas' C parser on the wanted columns, through a :class:`_Scanner`.
+
+    When no line has as many fields as the header, the C parser refuses ``usecols`` ("Too many columns
+    specified"); then every column is read (as text where not wanted), which only such a file pays for.
+    """
+    for attempt in ("wanted", "all"):
+        layout.handle.seek(layout.data_start)
+        scanner = _Scanner(layout.handle, layout.path, layout.dialect.separator, layout.header, layout.data_start)
+        columns = usecols if attempt == "wanted" else None
+        types = dtypes if attempt == "wanted" else {i: dtypes.get(i, str) for i in range(len(layout.header))}
+        try:
+            frame = _read_csv(scanner, layout, columns, types)
+        except _AbortError as stop:
+            stop.problem = scanner.problem  # type: ignore[assignment]
+            raise
+        except (ValueError, pd.errors.ParserError, UnicodeDecodeError, OverflowError) as exc:
+            if scanner.problem is not None:
+                stop = _AbortError(str(exc))
+                stop.problem = scanner.problem
+                raise stop from None
+            if attempt == "wanted" and str(exc).startswith("Too many columns specified"):
+                continue
+            raise
+        return frame, scanner
+    raise AssertionError("unreachable")
+
+
 def _read_body(layout: _Layout, wanted: dict[str, Kind], short_rows: str) -> Table:
     path, header, index = layout.path, layout.header, layout.index
     sep = layout.dialect.separator
     present = [name for name in wanted if name in index]
     usecols = sorted(index[name] for name in present)
     dtypes = {index[name]: (np.float64 if wanted[name] in ("float", "int") else str) for name in present}
-    layout.handle.seek(layout.data_start)
-    scanner = _Scanner(layout.handle, path, sep, header, layout.data_start)
     try:
-        frame = pd.read_csv(scanner, sep=r"\s+" if sep is None else sep, header=None, names=list(range(len(header))),
-                            usecols=usecols, dtype=dtypes, quoting=csv.QUOTE_NONE, skip_blank_lines=False,
-                            skipinitialspace=True, keep_default_na=False, na_values=[""], engine="c",
-                            index_col=False, encoding="utf-8")
-    except _AbortError:
-        raise scanner.problem from None  # type: ignore[misc]
+        frame, scanner = _parse(layout, usecols, dtypes)
+    except _AbortError as stop:
+        raise stop.problem from None
     except (ValueError, pd.errors.ParserError, UnicodeDecodeError, OverflowError) as exc:
-        if scanner.problem is not None:
-            raise scanner.problem from None
-        located = _locate_bad_cell(layout, wanted, present)
+        try:
+            located = _locate_bad_cell(layout, wanted, present)
+        except (ValueError, pd.errors.ParserError):
+            located = None
         if located is not None:
             raise located from None
         raise InputError(path, None, None, f"cannot parse the table: {excerpt(str(exc), 200)}") from None
@@ -902,19 +937,33 @@ def _read_body(layout: _Layout, wanted: dict[str, Kind], short_rows: str) -> Tab
                  incomplete=incomplete[rows], fields=n_fields[rows])
 
 
+def _text_chunks(layout: _Layout, usecols: list[int]) -> Iterator[pd.DataFrame]:
+    """The wanted columns as text, 100,000 rows at a time (every column when no line is complete)."""
+    layout.handle.seek(layout.data_start)
+    yielded = False
+    try:
+        for chunk in _read_csv(layout.handle, layout, usecols, dict.fromkeys(usecols, str), encoding_errors="replace",
+                               chunksize=100_000):
+            yielded = True
+            yield chunk
+        return
+    except pd.errors.ParserError as exc:
+        if yielded or not str(exc).startswith("Too many columns specified"):
+            raise
+    layout.handle.seek(layout.data_start)
+    yield from _read_csv(layout.handle, layout, None, dict.fromkeys(range(len(layout.header)), str),
+                         encoding_errors="replace", chunksize=100_000)
+
+
 def _locate_bad_cell(layout: _Layout, wanted: dict[str, Kind], present: list[str]) -> InputError | None:
     """Diagnostic pass (pandas refused a cell): the earliest cell of a wanted column that is not its kind."""
     path, header, index = layout.path, layout.header, layout.index
     sep = layout.dialect.separator
     layout.handle.seek(layout.data_start)
     usecols = sorted(index[name] for name in present)
-    reader = pd.read_csv(layout.handle, sep=r"\s+" if sep is None else sep, header=None,
-                         names=list(range(len(header))), usecols=usecols, dtype=str, quoting=csv.QUOTE_NONE,
-                         skip_blank_lines=False, skipinitialspace=True, keep_default_na=False, na_values=[""],
-                         engine="c", index_col=False, encoding="utf-8", encoding_errors="replace",
-                         chunksize=100_000)
+    chunks = _text_chunks(layout, usecols)
     first_row = 0
-    for chunk in reader:
+    for chunk in chunks:
         best: tuple[int, int, str] | None = None
         for name in sorted(present, key=lambda n: index[n]):
             bad = _bad_cells(chunk[index[name]], wanted[name])
