@@ -677,3 +677,39 @@ def test_gnss_fix_kilometres_away_is_dropped_or_rejected(tmp_path, bundled_confi
     with pytest.raises(InputError) as info:
         process(pos, DATA / "Kamera.txt", bundled_config)
     assert info.value.line == notes[0].lines[0] and "jumps by 5.5" in str(info.value)
+
+
+def test_raw_camera_log_is_told_apart_ignoring_case_and_keeps_cut_lines(files, flight_config, tmp_path):
+    kamera = pd.read_csv(files["Kamera.txt"], sep="\t")
+    local = kamera["Time"] + 7200
+    raw = pd.DataFrame({"number": kamera["Number"],
+                        "TIME": [f"{s // 3600:02d}:{s // 60 % 60:02d}:{s % 60:02d}" for s in local],
+                        "milliseconds": kamera["Milliseconds"], "EXPOSITION": 10})
+    raw_path = tmp_path / "camera_raw.txt"
+    raw.to_csv(raw_path, sep=";", index=False)
+    lines = _lines(raw_path)
+    lines[-1] = lines[-1].split(";")[0]
+    raw_path.write_text("".join(lines))
+    result = process(files["POS.txt"], raw_path, flight_config.updated(camera_utc_offset=2.0))
+    assert len(result.table) == len(kamera)
+    assert "exposure line cut short" in result.table["flag"].iloc[-1]
+    assert result.table["lat"].iloc[:-1].notna().all()
+
+
+def test_generic_inputs_have_plausibility_limits(tmp_path):
+    from georef.io.generic import read_gnss_csv, read_imu_csv
+
+    imu = tmp_path / "imu.csv"
+    rows = [f"{0.01 * k:.2f},0.01,0.02,0.03,0.1,0.2,-9.8" for k in range(50)]
+    rows[20] = "0.20,100,0.02,0.03,0.1,0.2,-9.8"  # 100 rad/s = 5730 deg/s
+    imu.write_text("time,gyro_x,gyro_y,gyro_z,acc_x,acc_y,acc_z\n" + "\n".join(rows) + "\n")
+    with pytest.raises(InputError) as info:
+        read_imu_csv(imu)
+    assert (info.value.line, info.value.column) == (22, "gyro_x") and "rad/s" in str(info.value)
+    gnss = tmp_path / "gnss.csv"
+    fixes = [f"{k},{45 + 2e-4 * k:.6f},15.0,200.0" for k in range(20)]
+    fixes[10] = "10,45.1,15.0,200.0"  # 10 km away for one fix
+    gnss.write_text("time;lat;lon;height\n" + "\n".join(fixes).replace(",", ";") + "\n")
+    epochs = read_gnss_csv(gnss)
+    assert len(epochs) == 19 and 12 not in epochs.line
+    assert any("dropped" in n.message and n.lines == [12] for n in epochs.notices)

@@ -295,8 +295,15 @@ def _utf16_to_utf8(path: Path, handle: BinaryIO) -> BinaryIO:
 # ---------------------------------------------------------------------------------------------- separator
 
 
+_BLANKS = re.compile(r"[ \t]+")
+
+
 def _split(text: str, sep: str | None) -> list[str]:
-    return text.split() if sep is None else text.split(sep)
+    """Fields of a line: split at ``sep``, or (None) at runs of spaces and tabs, as pandas' C parser does."""
+    if sep is not None:
+        return text.split(sep)
+    stripped = text.strip(" \t")
+    return _BLANKS.split(stripped) if stripped else []
 
 
 def _column_at(line_prefix: bytes, sep: str | None, header: list[str], marks: int = 0, in_word: bool = False) -> str:
@@ -306,10 +313,10 @@ def _column_at(line_prefix: bytes, sep: str | None, header: list[str], marks: in
     word starts seen, and whether it ended inside a word) when the line began in an earlier block.
     """
     if sep is None:
-        words = re.findall(rb"\S+", line_prefix)
-        continues = bool(line_prefix[:1]) and not line_prefix[:1].isspace() and in_word
+        words = re.findall(rb"[^ \t\r]+", line_prefix)
+        continues = bool(line_prefix[:1]) and line_prefix[:1] not in b" \t\r" and in_word
         total = marks + len(words) - (1 if continues else 0)
-        ends_in_word = (bool(line_prefix) and not line_prefix[-1:].isspace()) or (not line_prefix and in_word)
+        ends_in_word = (bool(line_prefix) and line_prefix[-1:] not in b" \t\r") or (not line_prefix and in_word)
         index = total - 1 if ends_in_word else total
     else:
         index = marks + line_prefix.count(sep.encode())
@@ -332,7 +339,7 @@ def _detect_separator(path: Path, header_text: str, samples: list[tuple[int, str
     """The separator of a table from its header line and a few data lines ``(line number, text)``."""
     candidates = [sep for sep in SEPARATORS if sep in header_text]
     if not candidates:
-        chosen: str | None = None if len(header_text.split()) > 1 else "\t"
+        chosen: str | None = None if len(_split(header_text, None)) > 1 else "\t"
     elif len(candidates) == 1:
         chosen = candidates[0]
     else:
@@ -457,7 +464,7 @@ class _Scanner(io.RawIOBase):
     def _count_fields(self, chunk: bytes, a: np.ndarray) -> None:
         newlines = np.flatnonzero(a == 10)
         if self.sep is None:
-            brk = (a == 32) | (a == 9) | (a == 13) | (a == 10) | (a == 11) | (a == 12)
+            brk = (a == 32) | (a == 9) | (a == 13) | (a == 10)
             before = np.empty(len(a), dtype=bool)
             before[0] = not self._in_word
             before[1:] = brk[:-1]
@@ -469,7 +476,7 @@ class _Scanner(io.RawIOBase):
         if len(newlines) == 0:
             self._marks += int(np.count_nonzero(marks))
             self._nonblank = self._nonblank or bool(chunk.strip())
-            self._in_word = bool(a[-1] not in (32, 9, 13, 10, 11, 12))
+            self._in_word = bool(a[-1] not in (32, 9, 13, 10))
             return
         last = int(newlines[-1])
         starts = np.empty(len(newlines), dtype=np.intp)
@@ -488,7 +495,7 @@ class _Scanner(io.RawIOBase):
         self._marks = int(np.count_nonzero(marks[last + 1:]))
         tail = chunk[last + 1:]
         self._nonblank = bool(tail.strip())
-        self._in_word = bool(tail) and a[-1] not in (32, 9, 13, 10, 11, 12)
+        self._in_word = bool(tail) and a[-1] not in (32, 9, 13, 10)
 
     def _anomaly(self, chunk: bytes, k: int, fields: int, start: int, newlines: np.ndarray) -> None:
         line = self.line + k
@@ -545,7 +552,7 @@ def _nth_separator(text: bytes, sep: str | None, n: int) -> int | None:
     """Byte index of the start of field ``n`` (0-based) of a line, or None."""
     decoded = text.decode("utf-8", errors="replace")
     if sep is None:
-        matches = list(re.finditer(r"\S+", decoded))
+        matches = list(re.finditer(r"[^ \t]+", decoded))
         return len(decoded[: matches[n].start()].encode()) if len(matches) > n else None
     parts = decoded.split(sep)
     return len(sep.join(parts[:n]).encode()) + 1 if len(parts) > n else None
