@@ -3,7 +3,8 @@
 Each case mutates a slice of the bundled flight (``data/``) with one to three of: cut lines, dropped fields,
 stray quotes, a byte-order mark, undecodable or NUL bytes, ``inf``/``nan``, digits of other scripts, other
 separators, huge cells, absurd values, header case and blanks, CR LF and lone CR line ends, blank, repeated,
-swapped and deleted lines. Every case must end in either a clean result or an :class:`InputError`, and:
+swapped and deleted lines, files of a single (cut) line. Every case must end in either a clean result or an
+:class:`InputError`, and:
 
 * no other exception (no traceback);
 * an error names the file and a line or a column, and stays short (a 100 000-character cell is quoted as an
@@ -164,11 +165,15 @@ def _mutate(case: Case, rng: random.Random, kind: str) -> None:
     elif kind == "extra_field":
         cells.insert(j, b"1")
         _mark(case, i, b"\t".join(cells))
+    elif kind == "single_line":
+        # a file of one data line, often cut short: no line is complete
+        line = case.lines[i]
+        case.lines, case.original, case.touched = [line[: rng.randrange(1, len(line) + 1)]], [case.original[i]], {0}
 
 
 KINDS = ("truncate_file", "truncate_line", "drop_field", "drop_last_field", "quote", "bom", "bad_bytes", "non_finite",
          "unicode_digit", "separator_line", "separator_file", "huge_cell", "absurd", "header_blank", "header_case",
-         "crlf", "lone_cr", "blank", "duplicate", "swap", "delete", "empty_cell", "extra_field")
+         "crlf", "lone_cr", "blank", "duplicate", "swap", "delete", "empty_cell", "extra_field", "single_line")
 
 
 def _base(path: Path, first: int, count: int) -> tuple[list[bytes], list[bytes]]:

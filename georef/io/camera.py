@@ -17,7 +17,7 @@ import numpy as np
 
 from georef.align import SECONDS_PER_DAY
 from georef.io.errors import InputError, InputNotice, excerpt
-from georef.io.table import Table, peek_header, read_table
+from georef.io.table import Source, Table, peek_header, read_table, snapshot, source_path
 
 #: role -> default header name
 CAMERA_ROLES: dict[str, str] = {"number": "Number", "time": "Time", "milliseconds": "Milliseconds"}
@@ -113,14 +113,14 @@ def _incomplete(path: Path, table: Table, names: Mapping[str, str], frame: np.nd
     return problem
 
 
-def read_kamera(path: Path | str, column_names: Mapping[str, str] | None = None) -> Exposures:
+def read_kamera(source: Source, column_names: Mapping[str, str] | None = None) -> Exposures:
     """``Kamera.txt``: ``Number  Time  Milliseconds``; time = Time + Milliseconds/1000 [UTC s of day].
 
     ``Time`` must be a whole second of the day (0..86400), ``Milliseconds`` 0..999.
     """
-    path = Path(path)
+    path = source_path(source)
     names = resolve_camera_columns(column_names)
-    table = read_table(path, {names["number"]: "str", names["time"]: "int", names["milliseconds"]: "int"},
+    table = read_table(source, {names["number"]: "str", names["time"]: "int", names["milliseconds"]: "int"},
                        required=set(names.values()), short_rows="keep")
     spelled = {role: table.names.get(name, name) for role, name in names.items()}
     ms = table.columns[names["milliseconds"]]
@@ -141,19 +141,19 @@ def read_kamera(path: Path | str, column_names: Mapping[str, str] | None = None)
     return Exposures(path=path, frame=frame, time=times, lines=table.lines, notices=notices, problem=problem)
 
 
-def read_camera_log(path: Path | str, utc_offset_hours: float | None,
+def read_camera_log(source: Source, utc_offset_hours: float | None,
                     column_names: Mapping[str, str] | None = None) -> Exposures:
     """The camera's raw log; ``Time`` is local clock ``hh:mm:ss`` and ``utc_offset_hours`` is required.
 
     UTC = local - offset (the seed's summer flights: offset +2 h). Columns beyond the first three
     (exposure, gain, bit depth, shift) are not needed for georeferencing and are ignored.
     """
-    path = Path(path)
+    path = source_path(source)
     names = resolve_camera_columns(column_names)
     if utc_offset_hours is None:
         raise InputError(path, None, names["time"], "the camera log holds local clock time; give its UTC offset in "
                          "hours (--camera-utc-offset, e.g. 2 for UTC+2); there is no default")
-    table = read_table(path, {names["number"]: "str", names["time"]: "str", names["milliseconds"]: "int"},
+    table = read_table(source, {names["number"]: "str", names["time"]: "str", names["milliseconds"]: "int"},
                        required=set(names.values()), short_rows="keep")
     spelled = {role: table.names.get(name, name) for role, name in names.items()}
     ms = table.columns[names["milliseconds"]]
@@ -190,15 +190,19 @@ def _clock_seconds(text: str) -> float | None:
     return hh * 3600 + mm * 60 + ss
 
 
-def is_camera_log(path: Path | str) -> bool:
-    """Whether ``path`` is the camera's raw log: its header has an ``Exposition`` column (any case)."""
-    header = peek_header(Path(path))
+def is_camera_log(source: Source) -> bool:
+    """Whether ``source`` is the camera's raw log: its header has an ``Exposition`` column (any case)."""
+    header = peek_header(source)
     return RAW_LOG_COLUMN.casefold() in {name.casefold() for name in header}
 
 
 def read_exposures(path: Path | str, utc_offset_hours: float | None = None,
                    column_names: Mapping[str, str] | None = None) -> Exposures:
-    """Kamera.txt or the camera's raw log, told apart by the raw log's ``Exposition`` header column."""
-    if is_camera_log(path):
-        return read_camera_log(path, utc_offset_hours, column_names)
-    return read_kamera(path, column_names)
+    """Kamera.txt or the camera's raw log, told apart by the raw log's ``Exposition`` header column.
+
+    The file is read twice (header, then table), so a pipe is first read into memory (:func:`snapshot`).
+    """
+    source = snapshot(path)
+    if is_camera_log(source):
+        return read_camera_log(source, utc_offset_hours, column_names)
+    return read_kamera(source, column_names)

@@ -6,12 +6,17 @@
   takes its heading from them when the motion never shows it, ``georef attitude`` reads the magnetometer.
 * ``gnss.csv``: ``time, lat, lon, height`` [+ ``sigma_n, sigma_e, sigma_u``] — degrees, metres, antenna
   position, the IMU's time scale.
+* Both are read by :func:`georef.io.table.read_table` (any separator, header names ignoring case) and checked
+  against :data:`georef.io.plausibility.GENERIC_LIMITS`; a GNSS fix far from both neighbours is dropped with a
+  notice, a lasting jump is an error.
 * ``traj.csv`` (written by ``georef fuse``): ``time, lat, lon, height, vn, ve, vd, roll, pitch, yaw`` and
   their standard deviations.
 """
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +27,7 @@ from georef.frames import wrap_360
 from georef.fusion.solution import NavSolution
 from georef.io.atomic import atomic_write
 from georef.io.errors import InputError
+from georef.io.plausibility import GENERIC_LIMITS, check_gnss_jumps, check_ranges
 from georef.io.table import read_table
 
 IMU_COLUMNS = ("time", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
@@ -39,9 +45,14 @@ def read_imu_csv(path: Path | str) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
 def read_imu_heading_sources(path: Path | str) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The heading sources of ``imu.csv`` beside the IMU: the magnetometer (N, 3) and the autopilot's yaw [rad]
     (N,), each None when the file has no such columns."""
+    if os.path.exists(path) and stat.S_ISFIFO(os.stat(path).st_mode):
+        raise InputError(path, None, None, "a pipe can be read only once, and imu.csv is read twice here (the IMU, "
+                         "then its heading sources): save it to a file")
     wanted = dict.fromkeys((*IMU_COLUMNS, *MAG_COLUMNS, AUTOPILOT_YAW), "float")
-    table = read_table(path, wanted, required=set(IMU_COLUMNS), sep=",")
+    table = read_table(path, wanted, required=set(IMU_COLUMNS))
     c = table.columns
+    check_ranges(table.path, {name: c[name] for name in ("yaw",) if name in c}, table.lines, table.names,
+                 GENERIC_LIMITS)
     present = [name for name in MAG_COLUMNS if name in c]
     if present and len(present) < 3:
         missing = [name for name in MAG_COLUMNS if name not in c][0]
@@ -54,9 +65,10 @@ def read_imu_heading_sources(path: Path | str) -> tuple[np.ndarray | None, np.nd
 def read_marg_csv(path: Path | str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
     """``imu.csv`` with optional ``mag_x, mag_y, mag_z`` -> time, gyro, specific force, field or None, lines."""
     wanted = dict.fromkeys((*IMU_COLUMNS, *MAG_COLUMNS), "float")
-    table = read_table(path, wanted, required=set(IMU_COLUMNS), sep=",")
+    table = read_table(path, wanted, required=set(IMU_COLUMNS))
     c = table.columns
-    check_increasing(table.path, c["time"], table.lines, "time")
+    check_increasing(table.path, c["time"], table.lines, table.names.get("time", "time"))
+    check_ranges(table.path, c, table.lines, table.names, GENERIC_LIMITS)
     same = np.flatnonzero(np.diff(c["time"]) == 0)
     if len(same):
         raise InputError(table.path, int(table.lines[same[0] + 1]), "time", "repeated time stamp")
@@ -73,9 +85,10 @@ def read_marg_csv(path: Path | str) -> tuple[np.ndarray, np.ndarray, np.ndarray,
 def read_gnss_csv(path: Path | str) -> GnssEpochs:
     """``gnss.csv`` -> GNSS antenna fixes (optional per-fix sigmas)."""
     wanted = dict.fromkeys((*GNSS_COLUMNS, "sigma_n", "sigma_e", "sigma_u"), "float")
-    table = read_table(path, wanted, required=set(GNSS_COLUMNS), sep=",")
+    table = read_table(path, wanted, required=set(GNSS_COLUMNS))
     c = table.columns
-    check_increasing(table.path, c["time"], table.lines, "time")
+    check_increasing(table.path, c["time"], table.lines, table.names.get("time", "time"))
+    check_ranges(table.path, c, table.lines, table.names, GENERIC_LIMITS)
     bad = np.flatnonzero((np.abs(c["lat"]) > 90) | (np.abs(c["lon"]) > 180))
     if len(bad):
         raise InputError(table.path, int(table.lines[bad[0]]), "lat/lon", "coordinate outside the valid range")
@@ -85,8 +98,11 @@ def read_gnss_csv(path: Path | str) -> GnssEpochs:
         nonpositive = np.flatnonzero(np.any(sigma <= 0, axis=1))
         if len(nonpositive):
             raise InputError(table.path, int(table.lines[nonpositive[0]]), "sigma_n/e/u", "sigma must be positive")
-    return GnssEpochs(time=c["time"], lat_deg=c["lat"], lon_deg=c["lon"], height=c["height"], line=table.lines,
-                      repeated=np.zeros(len(table), bool), notices=list(table.notices), sigma_neu=sigma)
+    fixes = GnssEpochs(time=c["time"], lat_deg=c["lat"], lon_deg=c["lon"], height=c["height"], line=table.lines,
+                       repeated=np.zeros(len(table), bool), notices=list(table.notices), sigma_neu=sigma)
+    fixes, notices = check_gnss_jumps(table.path, fixes, "lat/lon/height")
+    fixes.notices.extend(notices)
+    return fixes
 
 
 def trajectory_table(nav: NavSolution) -> pd.DataFrame:

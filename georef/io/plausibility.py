@@ -62,7 +62,7 @@ SPIKE_FLOOR: dict[str, float] = {
     **{f"{p}_{a}": 20.0 for p in ("gyro", "igyro") for a in "xyz"},  # deg/s
     "roll": 5.0, "pitch": 5.0, "yaw": 5.0,                             # deg
 }
-#: the rows over which the local scatter (median absolute step) is taken
+#: the steps either side of a row over which its local scatter (median absolute step) is taken
 SPIKE_BLOCK = 250
 #: fastest plausible motion between consecutive GNSS fixes [m/s]
 MAX_GNSS_SPEED = 600.0
@@ -71,10 +71,20 @@ _UNITS = {**{role: limit.unit for role, limit in LIMITS.items()}}
 _ANGLES = {"roll", "yaw"}
 
 
-def check_ranges(path: Path, data: Mapping[str, np.ndarray], lines: np.ndarray, names: Mapping[str, str]) -> None:
-    """Raise :class:`InputError` at the first value outside its :data:`LIMITS` interval (earliest line)."""
+#: the same limits for the generic ``imu.csv`` and ``gnss.csv`` (their units: rad/s, m/s^2, deg, m)
+GENERIC_LIMITS: dict[str, Limit] = {
+    **{f"gyro_{a}": Limit(-np.radians(2000.0), np.radians(2000.0), "rad/s", _RATE.why) for a in "xyz"},
+    **{f"acc_{a}": _FORCE for a in "xyz"},
+    "yaw": LIMITS["yaw"], "roll": LIMITS["roll"], "pitch": LIMITS["pitch"],
+    "height": LIMITS["alt"],
+}
+
+
+def check_ranges(path: Path, data: Mapping[str, np.ndarray], lines: np.ndarray, names: Mapping[str, str],
+                 limits: Mapping[str, Limit] = LIMITS) -> None:
+    """Raise :class:`InputError` at the first value outside its interval in ``limits`` (earliest line)."""
     first: tuple[int, str] | None = None
-    for role, limit in LIMITS.items():
+    for role, limit in limits.items():
         values = data.get(role)
         if values is None or not len(values):
             continue
@@ -85,44 +95,44 @@ def check_ranges(path: Path, data: Mapping[str, np.ndarray], lines: np.ndarray, 
                 first = (row, role)
     if first is not None:
         row, role = first
-        limit = LIMITS[role]
+        limit = limits[role]
         value = float(data[role][row])
         raise InputError(path, int(lines[row]), names.get(role, role),
                          f"{value:.6g} {limit.unit} is outside the plausible range {limit.low:g}..{limit.high:g} "
                          f"{limit.unit} ({limit.why})")
 
 
-def _local_scale(step: np.ndarray) -> np.ndarray:
-    """Per step: the largest median |step| of its block of :data:`SPIKE_BLOCK` rows and the two beside it."""
-    n = len(step)
-    blocks = -(-n // SPIKE_BLOCK)
-    padded = np.full(blocks * SPIKE_BLOCK, np.nan)
-    padded[:n] = np.abs(step)
-    median = np.nanmedian(padded.reshape(blocks, SPIKE_BLOCK), axis=1)
-    widest = median.copy()
-    widest[1:] = np.maximum(widest[1:], median[:-1])
-    widest[:-1] = np.maximum(widest[:-1], median[1:])
-    return np.repeat(widest, SPIKE_BLOCK)[:n]
-
-
 def find_spikes(values: np.ndarray, floor: float, wrap: float | None = None) -> np.ndarray:
-    """Indices of one-row spikes in ``values`` (see the module docstring); ``wrap`` [deg] for angles."""
+    """Indices of one-row spikes in ``values`` (see the module docstring); ``wrap`` [deg] for angles.
+
+    Row ``i`` (not the first or last) is a spike when ``x[i] - x[i-1]`` and ``x[i] - x[i+1]`` have the same sign
+    and both exceed ``max(floor, SPIKE_FACTOR * s)``, where ``s`` is the median absolute step over the
+    :data:`SPIKE_BLOCK` steps either side, and ``|x[i+1] - x[i-1]|`` is less than half the smaller of the two.
+    Only rows whose steps exceed ``floor`` are examined further, so a clean channel costs a few array passes.
+    """
     n = len(values)
     if n < 5:
         return np.zeros(0, dtype=int)
     step = np.diff(values)
     if wrap is not None:
         step = (step + wrap / 2) % wrap - wrap / 2
-    scale = _local_scale(step)
-    left = step[:-1]            # x[i] - x[i-1], i = 1..n-2
-    right = -step[1:]           # x[i] - x[i+1]
-    across = step[:-1] + step[1:]
-    if wrap is not None:
-        across = (across + wrap / 2) % wrap - wrap / 2
-    smaller = np.minimum(np.abs(left), np.abs(right))
-    threshold = np.maximum(SPIKE_FACTOR * np.maximum(scale[:-1], scale[1:]), floor)
-    spike = (np.sign(left) == np.sign(right)) & (smaller > threshold) & (np.abs(across) < 0.5 * smaller)
-    return np.flatnonzero(spike) + 1
+    size = np.abs(step)
+    candidates = np.flatnonzero(np.minimum(size[:-1], size[1:]) > floor) + 1
+    spikes = []
+    for i in candidates.tolist():
+        left, right = step[i - 1], -step[i]
+        if (left > 0) != (right > 0):
+            continue
+        smaller = min(abs(left), abs(right))
+        across = step[i - 1] + step[i]
+        if wrap is not None:
+            across = (across + wrap / 2) % wrap - wrap / 2
+        if abs(across) >= 0.5 * smaller:
+            continue
+        scale = float(np.median(size[max(0, i - SPIKE_BLOCK): i + SPIKE_BLOCK]))
+        if smaller > SPIKE_FACTOR * scale:
+            spikes.append(i)
+    return np.asarray(spikes, dtype=int)
 
 
 def repair_spikes(path: Path, data: dict[str, np.ndarray], lines: np.ndarray,

@@ -33,7 +33,7 @@ import io
 import os
 import re
 import stat
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO, Literal
@@ -56,7 +56,8 @@ _LINE_PEEK = 4096         # bytes of a line read back to explain it
 
 _UTF8_BOM = b"\xef\xbb\xbf"
 _UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
-_FLOAT_TEXT = r"\s*[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\s*"
+# unambiguous (no nested or overlapping repeats), so a 5 MB cell is matched in linear time
+_FLOAT_TEXT = r"\s*[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\s*"
 _HEX_TEXT = r"\s*(?:0[xX])?[0-9a-fA-F]{1,16}\s*"
 _BAD_TEXT = re.compile(r'["\x00-\x08\x0a-\x1f\x7f]')
 _KIND_WORDS = {"float": "a number", "int": "a whole number", "hex": "a hexadecimal number"}
@@ -123,6 +124,7 @@ def _hex_or_none(text: object) -> int | None:
 
 def _parse_bare_hex(values: np.ndarray) -> np.ndarray | None:
     """Cells of 1-16 bare ASCII hex digits, vectorised over the joined text; None when any cell is not."""
+    n = len(values)
     try:
         joined = "\n".join(values)
     except TypeError:
@@ -131,29 +133,31 @@ def _parse_bare_hex(values: np.ndarray) -> np.ndarray | None:
         return None
     buf = np.frombuffer(joined.encode("ascii"), dtype=np.uint8)
     breaks = np.flatnonzero(buf == 10)
-    starts = np.empty(len(values), dtype=np.intp)
-    starts[0] = 0
-    starts[1:] = breaks + 1
-    ends = np.empty(len(values), dtype=np.intp)
+    if len(breaks) != n - 1:  # a cell holding a line break
+        return None
+    ends = np.empty(n, dtype=np.intp)
     ends[:-1] = breaks
     ends[-1] = len(buf)
-    lengths = ends - starts
+    lengths = np.diff(ends, prepend=-1) - 1
     if lengths.min() < 1 or lengths.max() > 16:
         return None
     digits = _HEX_LUT[buf]
     digits[breaks] = 0
-    if np.any(digits > 15):
+    if digits.max() > 15:
         return None
-    cell = np.repeat(np.arange(len(values)), lengths + 1)[: len(buf)]
-    shift = (ends[cell] - np.arange(len(buf)) - 1).clip(0).astype(np.uint64) * np.uint64(4)
-    return np.add.reduceat(digits.astype(np.uint64) << shift, starts)
+    # the last digit of every cell, then each earlier digit of the cells that have one, 4 bits further up
+    out = digits[ends - 1].astype(np.uint64)
+    for p in range(1, int(lengths.max())):
+        live = np.flatnonzero(lengths > p)
+        out[live] |= digits[ends[live] - 1 - p].astype(np.uint64) << np.uint64(4 * p)
+    return out
 
 
 def parse_hex(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Hex-string parsing: the integers (uint64) and a mask of cells that are not hex.
 
     Accepted: 1 to 16 ASCII hex digits, a ``0x`` prefix, surrounding blanks. The common case (bare digits) is
-    vectorised (about 30 ms per million cells); anything else goes cell by cell.
+    vectorised (about 0.1 s per million cells); anything else goes cell by cell.
     """
     values = np.asarray(values, dtype=object)
     if len(values) == 0:
@@ -194,11 +198,55 @@ def _read_pipe(path: Path) -> bytes:
     return b"".join(parts)
 
 
-def _open_source(path: Path) -> BinaryIO:
-    """A seekable binary handle on ``path``; folders, devices, sockets and empty files are refused.
+@dataclass(frozen=True)
+class InMemory:
+    """The bytes of an input that can be read only once (a pipe), with the path they came from (for messages)."""
+
+    path: Path
+    data: bytes = field(repr=False)
+
+    def __str__(self) -> str:
+        return str(self.path)
+
+
+Source = Path | str | InMemory
+
+
+def source_path(source: Source) -> Path:
+    """The path of a source, for messages."""
+    return source.path if isinstance(source, InMemory) else Path(source)
+
+
+def snapshot(source: Source) -> Path | InMemory:
+    """A source that can be read more than once: a named pipe (FIFO) read into memory, any other path as it is.
+
+    Use it before reading one input twice (e.g. its header to tell its format, then its table).
+    """
+    if isinstance(source, InMemory):
+        return source
+    path = Path(source)
+    try:
+        is_pipe = stat.S_ISFIFO(os.stat(path).st_mode)
+    except OSError:
+        return path
+    if not is_pipe:
+        return path
+    data = _read_pipe(path)
+    if not data:
+        raise InputError(path, 1, None, "the pipe gave no data (no header line)")
+    return InMemory(path, data)
+
+
+def _open_source(source: Source) -> BinaryIO:
+    """A seekable binary handle on ``source``; folders, devices, sockets and empty files are refused.
 
     A named pipe (FIFO, e.g. ``<(zcat POS.txt.gz)``) can be read only once, so it is read into memory.
     """
+    if isinstance(source, InMemory):
+        if not source.data:
+            raise InputError(source.path, 1, None, "the file is empty (no header line)")
+        return io.BytesIO(source.data)
+    path = Path(source)
     try:
         st = os.stat(path)
     except FileNotFoundError:
@@ -247,8 +295,15 @@ def _utf16_to_utf8(path: Path, handle: BinaryIO) -> BinaryIO:
 # ---------------------------------------------------------------------------------------------- separator
 
 
+_BLANKS = re.compile(r"[ \t]+")
+
+
 def _split(text: str, sep: str | None) -> list[str]:
-    return text.split() if sep is None else text.split(sep)
+    """Fields of a line: split at ``sep``, or (None) at runs of spaces and tabs, as pandas' C parser does."""
+    if sep is not None:
+        return text.split(sep)
+    stripped = text.strip(" \t")
+    return _BLANKS.split(stripped) if stripped else []
 
 
 def _column_at(line_prefix: bytes, sep: str | None, header: list[str], marks: int = 0, in_word: bool = False) -> str:
@@ -258,10 +313,10 @@ def _column_at(line_prefix: bytes, sep: str | None, header: list[str], marks: in
     word starts seen, and whether it ended inside a word) when the line began in an earlier block.
     """
     if sep is None:
-        words = re.findall(rb"\S+", line_prefix)
-        continues = bool(line_prefix[:1]) and not line_prefix[:1].isspace() and in_word
+        words = re.findall(rb"[^ \t\r]+", line_prefix)
+        continues = bool(line_prefix[:1]) and line_prefix[:1] not in b" \t\r" and in_word
         total = marks + len(words) - (1 if continues else 0)
-        ends_in_word = (bool(line_prefix) and not line_prefix[-1:].isspace()) or (not line_prefix and in_word)
+        ends_in_word = (bool(line_prefix) and line_prefix[-1:] not in b" \t\r") or (not line_prefix and in_word)
         index = total - 1 if ends_in_word else total
     else:
         index = marks + line_prefix.count(sep.encode())
@@ -284,7 +339,7 @@ def _detect_separator(path: Path, header_text: str, samples: list[tuple[int, str
     """The separator of a table from its header line and a few data lines ``(line number, text)``."""
     candidates = [sep for sep in SEPARATORS if sep in header_text]
     if not candidates:
-        chosen: str | None = None if len(header_text.split()) > 1 else "\t"
+        chosen: str | None = None if len(_split(header_text, None)) > 1 else "\t"
     elif len(candidates) == 1:
         chosen = candidates[0]
     else:
@@ -316,7 +371,9 @@ def _detect_separator(path: Path, header_text: str, samples: list[tuple[int, str
 
 
 class _AbortError(Exception):
-    """Raised inside pandas' read to stop it; the scanner's ``problem`` says why."""
+    """Raised inside pandas' read to stop it; ``problem`` (set by :func:`_parse`) says why."""
+
+    problem: InputError
 
 
 class _Scanner(io.RawIOBase):
@@ -407,7 +464,7 @@ class _Scanner(io.RawIOBase):
     def _count_fields(self, chunk: bytes, a: np.ndarray) -> None:
         newlines = np.flatnonzero(a == 10)
         if self.sep is None:
-            brk = (a == 32) | (a == 9) | (a == 13) | (a == 10) | (a == 11) | (a == 12)
+            brk = (a == 32) | (a == 9) | (a == 13) | (a == 10)
             before = np.empty(len(a), dtype=bool)
             before[0] = not self._in_word
             before[1:] = brk[:-1]
@@ -419,7 +476,7 @@ class _Scanner(io.RawIOBase):
         if len(newlines) == 0:
             self._marks += int(np.count_nonzero(marks))
             self._nonblank = self._nonblank or bool(chunk.strip())
-            self._in_word = bool(a[-1] not in (32, 9, 13, 10, 11, 12))
+            self._in_word = bool(a[-1] not in (32, 9, 13, 10))
             return
         last = int(newlines[-1])
         starts = np.empty(len(newlines), dtype=np.intp)
@@ -438,7 +495,7 @@ class _Scanner(io.RawIOBase):
         self._marks = int(np.count_nonzero(marks[last + 1:]))
         tail = chunk[last + 1:]
         self._nonblank = bool(tail.strip())
-        self._in_word = bool(tail) and a[-1] not in (32, 9, 13, 10, 11, 12)
+        self._in_word = bool(tail) and a[-1] not in (32, 9, 13, 10)
 
     def _anomaly(self, chunk: bytes, k: int, fields: int, start: int, newlines: np.ndarray) -> None:
         line = self.line + k
@@ -495,7 +552,7 @@ def _nth_separator(text: bytes, sep: str | None, n: int) -> int | None:
     """Byte index of the start of field ``n`` (0-based) of a line, or None."""
     decoded = text.decode("utf-8", errors="replace")
     if sep is None:
-        matches = list(re.finditer(r"\S+", decoded))
+        matches = list(re.finditer(r"[^ \t]+", decoded))
         return len(decoded[: matches[n].start()].encode()) if len(matches) > n else None
     parts = decoded.split(sep)
     return len(sep.join(parts[:n]).encode()) + 1 if len(parts) > n else None
@@ -592,9 +649,11 @@ class _Layout:
     index: dict[str, int]
 
 
-def _layout(path: Path, wanted: dict[str, Kind], required: list[str], sep: str | None | Literal["auto"]) -> _Layout:
+def _layout(source: Source, wanted: dict[str, Kind], required: list[str],
+            sep: str | None | Literal["auto"]) -> _Layout:
     """Open the file, check it is text, read its header, find the separator and the wanted columns."""
-    handle = _open_source(path)
+    path = source_path(source)
+    handle = _open_source(source)
     try:
         return _read_layout(path, handle, wanted, required, sep)
     except BaseException:
@@ -693,15 +752,18 @@ def _has_data(handle: BinaryIO, start: int) -> bool:
     return False
 
 
-def peek_header(path: Path | str) -> list[str]:
-    """The header names of a table file (BOM removed, separator detected, blanks stripped), nothing else read."""
-    layout = _layout(Path(path), {}, [], "auto")
+def peek_header(source: Source) -> list[str]:
+    """The header names of a table file (BOM removed, separator detected, blanks stripped), nothing else read.
+
+    A pipe is consumed: pass a :func:`snapshot` of it when the table is to be read afterwards.
+    """
+    layout = _layout(source, {}, [], "auto")
     layout.handle.close()
     return layout.header
 
 
 def read_table(
-    path: Path | str,
+    path: Source,
     wanted: dict[str, Kind],
     required: Iterable[str],
     sep: str | None | Literal["auto"] = "auto",
@@ -717,7 +779,6 @@ def read_table(
     * Blank lines are dropped (with a notice when they are not at the end).
     * Optional columns that are absent are simply not in ``Table.columns``.
     """
-    path = Path(path)
     ordered_required = [name for name in wanted if name in set(required)]
     layout = _layout(path, wanted, ordered_required, sep)
     try:
@@ -726,25 +787,58 @@ def read_table(
         layout.handle.close()
 
 
+def _read_csv(source: BinaryIO, layout: _Layout, usecols: list[int] | None, dtypes: dict[int, type],
+              **options: object) -> pd.DataFrame:
+    sep = layout.dialect.separator
+    return pd.read_csv(source, sep=r"\s+" if sep is None else sep, header=None, names=list(range(len(layout.header))),
+                       usecols=usecols, dtype=dtypes, quoting=csv.QUOTE_NONE, skip_blank_lines=False,
+                       skipinitialspace=True, keep_default_na=False, na_values=[""], engine="c", index_col=False,
+                       encoding="utf-8", **options)
+
+
+def _parse(layout: _Layout, usecols: list[int], dtypes: dict[int, type]) -> tuple[pd.DataFrame, _Scanner]:
+    """pandas' C parser on the wanted columns, through a :class:`_Scanner`.
+
+    When no line has as many fields as the header, the C parser refuses ``usecols`` ("Too many columns
+    specified"); then every column is read (as text where not wanted), which only such a file pays for.
+    """
+    for attempt in ("wanted", "all"):
+        layout.handle.seek(layout.data_start)
+        scanner = _Scanner(layout.handle, layout.path, layout.dialect.separator, layout.header, layout.data_start)
+        columns = usecols if attempt == "wanted" else None
+        types = dtypes if attempt == "wanted" else {i: dtypes.get(i, str) for i in range(len(layout.header))}
+        try:
+            frame = _read_csv(scanner, layout, columns, types)
+        except _AbortError as stop:
+            stop.problem = scanner.problem  # type: ignore[assignment]
+            raise
+        except (ValueError, pd.errors.ParserError, UnicodeDecodeError, OverflowError) as exc:
+            if scanner.problem is not None:
+                stop = _AbortError(str(exc))
+                stop.problem = scanner.problem
+                raise stop from None
+            if attempt == "wanted" and str(exc).startswith("Too many columns specified"):
+                continue
+            raise
+        return frame, scanner
+    raise AssertionError("unreachable")
+
+
 def _read_body(layout: _Layout, wanted: dict[str, Kind], short_rows: str) -> Table:
     path, header, index = layout.path, layout.header, layout.index
     sep = layout.dialect.separator
     present = [name for name in wanted if name in index]
     usecols = sorted(index[name] for name in present)
     dtypes = {index[name]: (np.float64 if wanted[name] in ("float", "int") else str) for name in present}
-    layout.handle.seek(layout.data_start)
-    scanner = _Scanner(layout.handle, path, sep, header, layout.data_start)
     try:
-        frame = pd.read_csv(scanner, sep=r"\s+" if sep is None else sep, header=None, names=list(range(len(header))),
-                            usecols=usecols, dtype=dtypes, quoting=csv.QUOTE_NONE, skip_blank_lines=False,
-                            skipinitialspace=True, keep_default_na=False, na_values=[""], engine="c",
-                            index_col=False, encoding="utf-8")
-    except _AbortError:
-        raise scanner.problem from None  # type: ignore[misc]
+        frame, scanner = _parse(layout, usecols, dtypes)
+    except _AbortError as stop:
+        raise stop.problem from None
     except (ValueError, pd.errors.ParserError, UnicodeDecodeError, OverflowError) as exc:
-        if scanner.problem is not None:
-            raise scanner.problem from None
-        located = _locate_bad_cell(layout, wanted, present)
+        try:
+            located = _locate_bad_cell(layout, wanted, present)
+        except (ValueError, pd.errors.ParserError):
+            located = None
         if located is not None:
             raise located from None
         raise InputError(path, None, None, f"cannot parse the table: {excerpt(str(exc), 200)}") from None
@@ -793,15 +887,23 @@ def _read_body(layout: _Layout, wanted: dict[str, Kind], short_rows: str) -> Tab
 
     columns: dict[str, np.ndarray] = {}
     rows = np.flatnonzero(keep)
+    every_row = len(rows) == len(frame)
     complete = ~incomplete[rows]
+    any_incomplete = not complete.all()
     for name in present:
         kind = wanted[name]
         spelled = header[index[name]]
-        values = frame[index[name]].to_numpy()[rows]
+        values = frame[index[name]].to_numpy()
+        if not every_row:
+            values = values[rows]
         # every column that is read is used: an empty cell is never silently a NaN (cut-short rows excepted)
-        empty = pd.isna(values) & complete
-        if kind == "str":
-            empty |= (values == "") & complete
+        if kind in ("float", "int"):
+            values = np.asarray(values, dtype=np.float64)
+            empty = np.isnan(values)
+        else:
+            empty = pd.isna(values) | (values == "")
+        if any_incomplete:
+            empty &= complete
         if np.any(empty):
             row = int(np.argmax(empty))
             raise InputError(path, int(lines[rows[row]]), spelled, "empty cell")
@@ -812,7 +914,6 @@ def _read_body(layout: _Layout, wanted: dict[str, Kind], short_rows: str) -> Tab
                 raise InputError(path, int(lines[rows[row]]), spelled, _cell_problem(str(values[row]), kind, sep))
             columns[name] = parsed
         elif kind in ("float", "int"):
-            values = values.astype(np.float64)
             infinite = np.isinf(values)
             if infinite.any():
                 row = int(np.argmax(infinite))
@@ -843,19 +944,33 @@ def _read_body(layout: _Layout, wanted: dict[str, Kind], short_rows: str) -> Tab
                  incomplete=incomplete[rows], fields=n_fields[rows])
 
 
+def _text_chunks(layout: _Layout, usecols: list[int]) -> Iterator[pd.DataFrame]:
+    """The wanted columns as text, 100,000 rows at a time (every column when no line is complete)."""
+    layout.handle.seek(layout.data_start)
+    yielded = False
+    try:
+        for chunk in _read_csv(layout.handle, layout, usecols, dict.fromkeys(usecols, str), encoding_errors="replace",
+                               chunksize=100_000):
+            yielded = True
+            yield chunk
+        return
+    except pd.errors.ParserError as exc:
+        if yielded or not str(exc).startswith("Too many columns specified"):
+            raise
+    layout.handle.seek(layout.data_start)
+    yield from _read_csv(layout.handle, layout, None, dict.fromkeys(range(len(layout.header)), str),
+                         encoding_errors="replace", chunksize=100_000)
+
+
 def _locate_bad_cell(layout: _Layout, wanted: dict[str, Kind], present: list[str]) -> InputError | None:
     """Diagnostic pass (pandas refused a cell): the earliest cell of a wanted column that is not its kind."""
     path, header, index = layout.path, layout.header, layout.index
     sep = layout.dialect.separator
     layout.handle.seek(layout.data_start)
     usecols = sorted(index[name] for name in present)
-    reader = pd.read_csv(layout.handle, sep=r"\s+" if sep is None else sep, header=None,
-                         names=list(range(len(header))), usecols=usecols, dtype=str, quoting=csv.QUOTE_NONE,
-                         skip_blank_lines=False, skipinitialspace=True, keep_default_na=False, na_values=[""],
-                         engine="c", index_col=False, encoding="utf-8", encoding_errors="replace",
-                         chunksize=100_000)
+    chunks = _text_chunks(layout, usecols)
     first_row = 0
-    for chunk in reader:
+    for chunk in chunks:
         best: tuple[int, int, str] | None = None
         for name in sorted(present, key=lambda n: index[n]):
             bad = _bad_cells(chunk[index[name]], wanted[name])
