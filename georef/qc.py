@@ -412,6 +412,15 @@ def check_frames(nav: NavSolution, table: pd.DataFrame) -> Check:
                      "be trusted either. Please report it with the data (a bug in georef, or data it does not "
                      "handle).")
     if count == 0:
+        from georef.io.camera import FLAG_INCOMPLETE
+
+        cut = flags.str.contains(FLAG_INCOMPLETE, regex=False).to_numpy()
+        if cut.any():
+            frames = table["frame"].astype(str).to_numpy()[cut]
+            listed = ", ".join(frames[:LIST_AT_MOST]) + (" ..." if cut.sum() > LIST_AT_MOST else "")
+            return Check("frames", WARN, f"{int(cut.sum())} of {n} exposure lines were cut short in the exposure "
+                         f"file and their rows are empty (frames {listed}); the other frames lie inside {span}. "
+                         "Recover those lines from the camera's own log.")
         return Check("frames", PASS, f"all {n} frames inside {span}")
     frames = table["frame"].astype(str).to_numpy()[outside]
     listed = ", ".join(frames[:LIST_AT_MOST]) + (" ..." if count > LIST_AT_MOST else "")

@@ -392,6 +392,10 @@ def test_kamera_line_cut_short_gets_a_flagged_row(files, flight_config):
     assert "Time, Milliseconds missing" in cut["flag"].iloc[1]
     assert cut[["time", "lat", "lon", "height", "yaw"]].isna().all().all()
     assert result.summary()["frames_flagged"] >= 2
+    from georef.qc import assess_result
+
+    frames = [c for c in assess_result(result).checks if c.name == "frames"][0]
+    assert frames.status == "warn" and "2 of" in frames.message and "cut short" in frames.message
     cli = _cli(files)
     assert cli.exit_code == 0 and f"lines 11, {n + 1}" in cli.output and "cut short" in cli.output
 
