@@ -165,3 +165,16 @@ def test_graph_estimates_the_lever_arm_it_is_not_told(flight_dir, flight_default
     told = solve_graph(log, flight_defaults)
     assert (np.abs(told.info["graph_lever_arm_m"] - truth) < 0.1).all()
     assert (told.info["graph_lever_arm_sigma_m"] <= 0.05 + 1e-9).all()
+
+
+def test_graph_attitude_departing_from_rts_fails_qc(tmp_path):
+    """A simulated car: the graph's horizontal positions agree with rts, but its pitch lay inside its own 2 sigma
+    for 0 % of the frames (yaw 0.76 deg against rts's 0.04). The check compares attitudes too and fails the run;
+    the same check passes the bundled flight (largest attitude separation about 1 sigma)."""
+    from georef.qc import assess_result
+
+    flight = simulate(SimConfig.for_vehicle("car", 180.0, seed=2))
+    paths = write_flight(flight, tmp_path / "car")
+    result = process(paths["POS.txt"], paths["Kamera.txt"], processing_config_for(flight).updated(method="graph"))
+    check = [c for c in assess_result(result).checks if c.name == "graph vs rts"][0]
+    assert check.status == "fail" and "attitudes" in check.message

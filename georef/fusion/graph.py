@@ -225,10 +225,15 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
     # the graph against the RTS it started from, in units of the graph's own horizontal sigma at each keyframe:
     # both smoothers carry the same information, so a separation of several sigma means one of them went wrong
     separation = np.hypot(d_pos[:, 0], d_pos[:, 1]) / np.sqrt(pos_var[:, 0] + pos_var[:, 1])
+    # and the attitude: the graph-minus-RTS rotation in each keyframe's NED frame, per axis in units of the graph's
+    # own sigma of that axis, the largest of the three
+    d_rot_n = np.einsum("kji,kj->ki", C_n_t_rows[key_rows], d_rot)
+    attitude_separation = np.max(np.abs(d_rot_n) / np.sqrt(np.diagonal(att_cov, axis1=1, axis2=2)), axis=1)
     info.update({"graph_lever_arm_m": np.asarray(result.atPoint3(lever_key), float),
                  "graph_lever_arm_sigma_m": np.sqrt(np.diag(marginals.marginalCovariance(lever_key))),
                  "graph_lever_arm_prior_sigma_m": lever_prior,
-                 "graph_rts_separation_sigma": separation, "keyframes": n_keys,
+                 "graph_rts_separation_sigma": separation,
+                 "graph_rts_attitude_separation_sigma": attitude_separation, "keyframes": n_keys,
                  "graph_error_initial": graph.error(values), "graph_error_final": graph.error(result)})
     return NavSolution(method="graph", time=t, r_e=r_e, v_e=v_e, lat=lat, lon=lon, height=height, roll=roll,
                        pitch=pitch, yaw=yaw, pos_var_n=pos_var_rows, att_sigma=att_sigma, valid=valid, gnss=rts.gnss,
