@@ -11,6 +11,8 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from georef.imu_errors import ImuErrorModel, imu_preset
 from georef.io.errors import InputError
 
@@ -91,9 +93,17 @@ class ProcessingConfig:
     graph_solver: str = "lm"
     #: factor graph: Cauchy robust kernel on the GNSS factors (False: plain Gaussian)
     graph_robust: bool = True
-    #: [m] 1-sigma of the given GNSS lever arm as the graph's prior on its lever-arm variable. None: 0.05 m (a
-    #: taped installation) when a lever arm is given (non-zero), else estimated freely (10 m)
-    lever_arm_gnss_sigma: float | None = None
+    #: [m] 1-sigma of the given GNSS lever arm as the graph's prior on its lever-arm variable, one number or one per
+    #: body axis. None: 0.05 m (a taped installation) when a lever arm is given (non-zero), else estimated freely
+    #: (10 m)
+    lever_arm_gnss_sigma: float | tuple[float, float, float] | None = None
+    #: [s] 1-sigma of the given ``gnss_latency`` as the graph's prior on its GNSS time-offset variable. None: 0.01 s
+    #: when a latency is given, else zero with 0.002 s (a PPS-synchronised log; set 0.5 to estimate it freely)
+    gnss_latency_sigma: float | None = None
+    #: the graph's prior on (lever arm x, y, z [m, body], GNSS time offset [s]) as ``(mean (4,), covariance
+    #: (4, 4))``, replacing the two priors above: set by ``georef batch --shared-calibration`` from the campaign's
+    #: other flights (docs/method-graph.md); not a flight.toml key
+    calibration_prior: tuple | None = None
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -113,6 +123,15 @@ class ProcessingConfig:
             object.__setattr__(self, name, tuple(float(v) for v in value))
         if self.covariance_rate <= 0:
             raise ValueError(f"covariance_rate must be positive Hz, got {self.covariance_rate}")
+        sigma = self.lever_arm_gnss_sigma
+        if sigma is not None:
+            values = np.atleast_1d(np.asarray(sigma, float))
+            if values.shape not in ((1,), (3,)) or (values <= 0).any():
+                raise ValueError(f"lever_arm_gnss_sigma needs one or three positive metres, got {sigma!r}")
+            object.__setattr__(self, "lever_arm_gnss_sigma", float(values[0]) if values.shape == (1,)
+                               else tuple(float(v) for v in values))
+        if self.gnss_latency_sigma is not None and self.gnss_latency_sigma <= 0:
+            raise ValueError(f"gnss_latency_sigma must be positive seconds, got {self.gnss_latency_sigma}")
         if min(self.gnss_sigma) <= 0:
             raise ValueError(f"gnss_sigma must be positive metres, got {self.gnss_sigma}")
 
@@ -129,7 +148,7 @@ class ProcessingConfig:
 _SECTIONS = {
     "processing": {"method", "attitude_source"},
     "mounting": {"lever_arm_gnss", "lever_arm_camera", "boresight", "lever_arm_gnss_sigma"},
-    "gnss": {"gnss_sigma", "gnss_rate_hz", "gnss_latency"},
+    "gnss": {"gnss_sigma", "gnss_rate_hz", "gnss_latency", "gnss_latency_sigma"},
     "camera": {"camera_utc_offset", "camera_time_offset"},
     "output": {"crs", "height", "vertical_crs", "image_names", "odm_angles"},
     "yaw_offset": {"yaw_window", "yaw_step", "yaw_bandwidth"},

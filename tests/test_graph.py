@@ -44,25 +44,22 @@ def test_robust_kernel_resists_outliers(tmp_path):
     plain = accuracy(frame_errors(results["plain"].table, flight.truth_frames))
     rts = accuracy(frame_errors(results["rts"].table, flight.truth_frames))
     assert robust["horizontal_rms_m"] < plain["horizontal_rms_m"]
-    assert robust["horizontal_rms_m"] <= rts["horizontal_rms_m"]  # this flight; see the xfail below
+    assert robust["horizontal_rms_m"] <= 1.05 * rts["horizontal_rms_m"]  # the issue's target
 
 
 SHORTFALL = pytest.mark.xfail(strict=True, reason=(
-    "known shortfall: with the unit's attitude fused (Gauss-Markov level errors, yaw origin and drift) the robust "
-    "graph beats RTS-with-gating on seed 2 (0.240 vs 0.265 m) but not on 1 (0.276 vs 0.260 m), 3 (0.295 vs 0.277 m; "
-    "it did before the RTS's noise model was fitted to the data) and 4 (0.308 vs 0.271 m); the two smoothers carry "
-    "the same information but their estimates differ by a few centimetres, and the Cauchy kernel down-weights good "
-    "fixes (docs/method-graph.md)"))
+    "known shortfall: the graph's horizontal RMS against the RTS's with these outliers is 1.040 (seed 1), 1.002 (2), "
+    "0.973 (3) and 1.058 (4; 0.2869 vs 0.2712 m, the same 1.059 on the clean flight): seed 4 misses rts + 5 %"))
 
 
-@pytest.mark.parametrize("seed", [pytest.param(1, marks=SHORTFALL), 2, pytest.param(3, marks=SHORTFALL),
-                                  pytest.param(4, marks=SHORTFALL)])
+@pytest.mark.parametrize("seed", [1, 2, 3, pytest.param(4, marks=SHORTFALL)])
 def test_graph_at_least_as_accurate_as_rts_with_outliers(tmp_path, seed):
+    """The issue's target: with outliers, the graph's horizontal RMS is at most the RTS's + 5 %."""
     sim = SimConfig(seed=seed, gnss=GnssModel(outliers=OUTLIERS))
     flight, results = _run(tmp_path, sim, graph={"method": "graph"}, rts={"method": "rts"})
     graph = accuracy(frame_errors(results["graph"].table, flight.truth_frames))
     rts = accuracy(frame_errors(results["rts"].table, flight.truth_frames))
-    assert graph["horizontal_rms_m"] <= rts["horizontal_rms_m"]
+    assert graph["horizontal_rms_m"] <= 1.05 * rts["horizontal_rms_m"]
 
 
 def test_isam2_matches_batch(tmp_path):

@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from georef.frames.earth import C_n_e
-from georef.frames.rotations import euler_to_dcm
+from georef.frames.rotations import euler_to_dcm, skew
 
 Array = NDArray[np.float64]
 
@@ -35,3 +35,9 @@ def lever_arm_ecef(lat: ArrayLike, lon: ArrayLike, C_b_n: ArrayLike, lever_arm_b
     """
     lever_n = np.asarray(C_b_n, dtype=float) @ np.asarray(lever_arm_b, dtype=float)
     return np.einsum("...ij,...j->...i", C_n_e(lat, lon), lever_n)
+
+
+def lever_arm_rotation_jacobian(C_b_x: ArrayLike, lever_arm_b: ArrayLike) -> Array:
+    """Derivative (..., 3, 3) of the lever-arm offset ``C_b_x @ lever_arm_b`` [m, frame x] with respect to a
+    body-frame rotation error ``phi`` [rad] applied as ``C_b_x (I + [phi x])``: ``-C_b_x [lever_arm_b x]``."""
+    return -np.asarray(C_b_x, dtype=float) @ skew(lever_arm_b)

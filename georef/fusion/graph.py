@@ -21,6 +21,8 @@
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from georef.config import ProcessingConfig
@@ -34,9 +36,11 @@ from georef.frames import (
     geodetic_to_ecef,
     normal_gravity,
 )
+from georef.frames.mounting import lever_arm_rotation_jacobian
 from georef.frames.rotations import (
     dcm_to_quat,
     euler_error_jacobian,
+    interval_rates,
     quat_multiply,
     quat_to_dcm,
     quat_to_rotvec,
@@ -99,7 +103,6 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
     params.setBiasOmegaCovariance(np.eye(3) * max(noise.q_bg, 1e-16))
     params.setOmegaCoriolis(C_e_t @ C_n_e(lat0, lon0) @ earth_rate_n(lat0))
 
-    graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     factors_at: dict[int, list] = {}
     C_b_t = C_n_t_rows @ euler_to_dcm(rts.roll, rts.pitch, rts.yaw)
@@ -111,7 +114,10 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
         values.insert(V(k), v_t[row])
         values.insert(B(k), gtsam.imuBias.ConstantBias(accel_bias[row], gyro_bias[row]))
     first = key_rows[0]
-    pos_sigma = np.sqrt(rts.pos_var_n[first]) * 3.0
+    prior_mean, prior_cov = calibration_prior(cfg)
+    # loose priors at the first keyframe: the RTS's position there rests on the given lever arm, so its prior
+    # also allows for the lever arm's own prior uncertainty (else an untold lever arm is pulled towards zero)
+    pos_sigma = np.hypot(np.sqrt(rts.pos_var_n[first]) * 3.0, np.sqrt(np.trace(prior_cov[:3, :3])))
     factors_at[0] = [
         gtsam.PriorFactorPose3(X(0), values.atPose3(X(0)), gtsam.noiseModel.Diagonal.Sigmas(
             np.concatenate([np.full(3, np.radians(1.0)), pos_sigma]))),
@@ -125,64 +131,52 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
     g_t = C_n_t_rows[:, :, 2] * normal_gravity(rts.lat, rts.height)[:, None]
     g_fix = np.einsum("nji,nj->ni", C_b_t, g_t - np.array([0.0, 0.0, float(normal_gravity(lat0, h0))]))
     accel = inputs.accel + np.where(np.isfinite(g_fix), g_fix, 0.0)
+    dt = np.diff(t)
+    gyro_mean, accel_mean = interval_rates(gyro, accel, dt)
     for k in range(1, len(key_rows)):
         a, b = key_rows[k - 1], key_rows[k]
         pim = gtsam.PreintegratedCombinedMeasurements(params, values.atConstantBias(B(k - 1)))
         for r in range(a, b):
-            dt = t[r + 1] - t[r]
-            pim.integrateMeasurement(0.5 * (accel[r] + accel[r + 1]), 0.5 * (gyro[r] + gyro[r + 1]), dt)
+            pim.integrateMeasurement(accel_mean[r], gyro_mean[r], dt[r])
         factors_at.setdefault(k, []).append(gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k),
                                                                     pim))
-    # GNSS antenna fixes, moved to the keyframe row's time along the velocity, with the sigmas the EKF + RTS
-    # fitted to this flight (the configured ones scaled by the fitted variance factors)
-    sigma = np.asarray(cfg.gnss_sigma) * np.sqrt([noise.r_scale_h, noise.r_scale_h, noise.r_scale_v])
-    base = gtsam.noiseModel.Diagonal.Sigmas(sigma)
-    # the GNSS lever arm [m, body] as a variable, estimated jointly with the trajectory
-    lever_key = gtsam.symbol("l", 0)
-    lever_given = np.asarray(cfg.lever_arm_gnss, float)
-    lever_prior = _lever_arm_prior_sigma(cfg)
-    calibration = rts.diagnostics.calibration
-    values.insert(lever_key, np.asarray(calibration.lever_arm if calibration is not None else lever_given, float))
-    factors_at[0].append(gtsam.PriorFactorPoint3(lever_key, lever_given,
-                                                 gtsam.noiseModel.Isotropic.Sigma(3, lever_prior)))
-    robust = (gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(CAUCHY_K), base)
-              if cfg.graph_robust else base)
-    fix_of_key = {}
-    for index in use:
-        row = int(np.searchsorted(t, gnss.time[index], side="left"))
-        k = int(np.searchsorted(key_rows, row))
-        if k >= len(key_rows) or key_rows[k] != row or k in fix_of_key:
-            continue
-        fix_of_key[k] = index
-        r_ant = geodetic_to_ecef(np.radians(gnss.lat_deg[index]), np.radians(gnss.lon_deg[index]), gnss.height[index])
-        z = to_plane(r_ant) + v_t[row] * (t[row] - gnss.time[index])
-        factors_at.setdefault(k, []).append(gtsam.GPSFactorArmCalib(X(k), lever_key, z, robust))
-    aiding = bool(cfg.unit_aiding and inputs.unit_rpy is not None)
-    if aiding:
+    if cfg.unit_aiding and inputs.unit_rpy is not None:
         _add_unit_attitude(gtsam, U, X, inputs.unit_rpy, rts, t, key_rows, C_n_t_rows, cfg, values, factors_at)
+    # the calibration variables (the GNSS lever arm [m, body] and the GNSS time offset [s]: each fix was measured
+    # that long before its time tag, the EKF's ``gnss_latency``) with their prior; GNSS antenna fixes with the
+    # sigmas the EKF + RTS fitted to this flight (the configured ones scaled by the fitted variance factors)
+    sigma = np.asarray(cfg.gnss_sigma) * np.sqrt([noise.r_scale_h, noise.r_scale_h, noise.r_scale_v])
+    fixes = _fixes_at_keyframes(gnss, use, t, key_rows, to_plane)
+    calibration = rts.diagnostics.calibration
+    lever_start = np.asarray(calibration.lever_arm if calibration is not None else prior_mean[:3], float)
+    start = gtsam.Values(values)
+    if cfg.graph_robust:
+        # robust pass: a Cauchy kernel on every fix, the lever arm a variable, the time offset held at its prior
+        # mean; the fixes it leaves as outliers are then dropped and the graph refitted with Gaussian factors
+        kernel = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(CAUCHY_K),
+                                                gtsam.noiseModel.Diagonal.Sigmas(sigma))
+        robust_factors = {k: [gtsam.GPSFactorArmCalib(X(k), LEVER, z + v_t[key_rows[k]] * (prior_mean[3] - lag),
+                                                      kernel)]
+                          for k, z, lag in zip(fixes.key, fixes.z, fixes.lag, strict=True)}
+        robust_factors[0] = robust_factors.get(0, []) + [gtsam.PriorFactorPoint3(
+            LEVER, prior_mean[:3], gtsam.noiseModel.Gaussian.Covariance(prior_cov[:3, :3]))]
+        robust_start = gtsam.Values(values)
+        robust_start.insert(LEVER, lever_start)
+        start = _optimise(gtsam, cfg, factors_at, robust_factors, robust_start, len(key_rows))
+        lever_start = np.asarray(start.atPoint3(LEVER), float)
+        start.erase(LEVER)
+    inlier = _inliers(start, fixes, lever_start, prior_mean[3], sigma, cfg.gate_chi2) if cfg.graph_robust else \
+        np.ones(len(fixes.key), bool)
+    start.insert(CALIBRATION, np.concatenate([lever_start, prior_mean[3:]]))
+    gnss_factors: dict[int, list] = {0: [gtsam.PriorFactorVector(CALIBRATION, prior_mean,
+                                                                 gtsam.noiseModel.Gaussian.Covariance(prior_cov))]}
+    for k, z, lag in zip(fixes.key[inlier], fixes.z[inlier], fixes.lag[inlier], strict=True):
+        gnss_factors.setdefault(k, []).append(_gnss_factor(gtsam, X(k), V(k), z, lag, sigma, start))
+    result = _optimise(gtsam, cfg, factors_at, gnss_factors, start, len(key_rows))
+    graph = gtsam.NonlinearFactorGraph()
     for k in range(len(key_rows)):
-        for factor in factors_at.get(k, []):
+        for factor in factors_at.get(k, []) + gnss_factors.get(k, []):
             graph.add(factor)
-    if cfg.graph_solver == "isam2":
-        # incremental: one keyframe (its IMU and GNSS factors) per update, as a real-time user would
-        isam = gtsam.ISAM2(gtsam.ISAM2Params())
-        for k in range(len(key_rows)):
-            new_graph = gtsam.NonlinearFactorGraph()
-            for factor in factors_at.get(k, []):
-                new_graph.add(factor)
-            new_values = gtsam.Values()
-            new_values.insert(X(k), values.atPose3(X(k)))
-            new_values.insert(V(k), values.atVector(V(k)))
-            new_values.insert(B(k), values.atConstantBias(B(k)))
-            if aiding:
-                new_values.insert(U(k), values.atVector(U(k)))
-            if k == 0:
-                new_values.insert(lever_key, values.atPoint3(lever_key))
-            isam.update(new_graph, new_values)
-        isam.update()
-        result = isam.calculateEstimate()
-    else:
-        result = gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams()).optimize()
     marginals = gtsam.Marginals(graph, result)
 
     # graph minus RTS at the keyframes, interpolated to every row
@@ -229,12 +223,17 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
     # own sigma of that axis, the largest of the three
     d_rot_n = np.einsum("kji,kj->ki", C_n_t_rows[key_rows], d_rot)
     attitude_separation = np.max(np.abs(d_rot_n) / np.sqrt(np.diagonal(att_cov, axis1=1, axis2=2)), axis=1)
-    info.update({"graph_lever_arm_m": np.asarray(result.atPoint3(lever_key), float),
-                 "graph_lever_arm_sigma_m": np.sqrt(np.diag(marginals.marginalCovariance(lever_key))),
-                 "graph_lever_arm_prior_sigma_m": lever_prior,
+    estimate = np.asarray(result.atVector(CALIBRATION), float)
+    covariance = marginals.marginalCovariance(CALIBRATION)
+    info.update({"graph_lever_arm_m": estimate[:3], "graph_lever_arm_sigma_m": np.sqrt(np.diag(covariance)[:3]),
+                 "graph_time_offset_s": float(estimate[3]),
+                 "graph_time_offset_sigma_s": float(np.sqrt(covariance[3, 3])),
+                 "graph_calibration": {"mean": estimate, "covariance": covariance, "prior_mean": prior_mean,
+                                       "prior_covariance": prior_cov},
+                 "graph_rejected_fixes": int(np.sum(~inlier)), "graph_fixes": len(inlier),
                  "graph_rts_separation_sigma": separation,
                  "graph_rts_attitude_separation_sigma": attitude_separation, "keyframes": n_keys,
-                 "graph_error_initial": graph.error(values), "graph_error_final": graph.error(result)})
+                 "graph_error_final": graph.error(result)})
     return NavSolution(method="graph", time=t, r_e=r_e, v_e=v_e, lat=lat, lon=lon, height=height, roll=roll,
                        pitch=pitch, yaw=yaw, pos_var_n=pos_var_rows, att_sigma=att_sigma, valid=valid, gnss=rts.gnss,
                        info=info, att_cov_n=att_cov_rows, diagnostics=rts.diagnostics)
@@ -242,14 +241,149 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
 
 LEVER_ARM_GIVEN_SIGMA = 0.05  # m, a lever arm taped on the installation
 LEVER_ARM_FREE_SIGMA = 10.0  # m, no lever arm given: only keeps the variable determinate
+TIME_OFFSET_GIVEN_SIGMA = 0.01  # s, a GNSS latency given in the configuration
+#: s, none given: a POS log time-tags its fixes from the receiver's PPS, so the offset is zero unless a latency is
+#: misconfigured (which the EKF's latency check reports). The offset is a time shift of the whole trajectory
+#: against the IMU's clock, so its error moves every frame along track by speed x error: 1-m fixes determine it
+#: to 13 ms in 3 minutes (0.4 m at 30 m/s; seed 1 of the bundled flight's kind went from 0.28 to 0.68 m with
+#: 20 ms, and 0.9 m free), PPK-grade fixes to 0.6 ms in 10 minutes. Set ``gnss_latency_sigma`` to calibrate it.
+TIME_OFFSET_DEFAULT_SIGMA = 0.002
+#: the calibration variable: (lever arm x, y, z [m, body], GNSS time offset [s]), one per flight
+CALIBRATION = 0x6300000000000000  # gtsam.symbol("c", 0), spelt out so that importing this module needs no gtsam
+LEVER = 0x6C00000000000000  # gtsam.symbol("l", 0): the lever arm alone (Point3), in the robust pass
 
 
-def _lever_arm_prior_sigma(cfg: ProcessingConfig) -> float:
-    """1-sigma [m] of the prior on the graph's lever-arm variable (``cfg.lever_arm_gnss_sigma``, else 0.05 m for
-    a given lever arm and a free estimate without one)."""
-    if cfg.lever_arm_gnss_sigma is not None:
-        return float(cfg.lever_arm_gnss_sigma)
-    return LEVER_ARM_GIVEN_SIGMA if any(v != 0.0 for v in cfg.lever_arm_gnss) else LEVER_ARM_FREE_SIGMA
+def calibration_prior(cfg: ProcessingConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The graph's prior on its calibration variable ``(lever arm x, y, z [m, body], time offset [s])``: mean (4,)
+    and covariance (4, 4).
+
+    ``cfg.calibration_prior`` (a campaign's estimate) when set; else the given lever arm with
+    ``cfg.lever_arm_gnss_sigma`` (0.05 m when a lever arm is given, free, 10 m, without one) and the given
+    ``gnss_latency`` with ``cfg.gnss_latency_sigma`` (0.01 s when given, else zero with 2 ms), uncorrelated.
+    """
+    if cfg.calibration_prior is not None:
+        mean, covariance = cfg.calibration_prior
+        return np.asarray(mean, float).reshape(4), np.asarray(covariance, float).reshape(4, 4)
+    lever_sigma = cfg.lever_arm_gnss_sigma
+    if lever_sigma is None:
+        lever_sigma = LEVER_ARM_GIVEN_SIGMA if any(v != 0.0 for v in cfg.lever_arm_gnss) else LEVER_ARM_FREE_SIGMA
+    offset_sigma = cfg.gnss_latency_sigma
+    if offset_sigma is None:
+        offset_sigma = TIME_OFFSET_GIVEN_SIGMA if cfg.gnss_latency is not None else TIME_OFFSET_DEFAULT_SIGMA
+    mean = np.array([*cfg.lever_arm_gnss, cfg.gnss_latency or 0.0])
+    sigmas = np.concatenate([np.broadcast_to(np.asarray(lever_sigma, float), 3), [offset_sigma]])
+    return mean, np.diag(sigmas**2)
+
+
+@dataclass(frozen=True)
+class _Fixes:
+    """GNSS fixes used by the graph: the keyframe of each (``key``), its antenna position in the plane ``z`` [m]
+    and ``lag`` = fix time - keyframe row time [s] (at most one IMU interval, negative)."""
+
+    key: np.ndarray
+    z: np.ndarray
+    lag: np.ndarray
+
+
+def _fixes_at_keyframes(gnss, use: np.ndarray, t: np.ndarray, key_rows: np.ndarray, to_plane) -> _Fixes:
+    """The fixes ``use`` (indices into ``gnss``) at their keyframes (the first IMU row at or after each), one per
+    keyframe."""
+    rows = np.searchsorted(t, gnss.time[use], side="left")
+    k = np.searchsorted(key_rows, rows)
+    at_key = (k < len(key_rows)) & (key_rows[np.minimum(k, len(key_rows) - 1)] == rows)
+    use, rows, k = use[at_key], rows[at_key], k[at_key]
+    k, first = np.unique(k, return_index=True)
+    use, rows = use[first], rows[first]
+    r_ant = geodetic_to_ecef(np.radians(gnss.lat_deg[use]), np.radians(gnss.lon_deg[use]), gnss.height[use])
+    return _Fixes(key=k, z=to_plane(r_ant), lag=gnss.time[use] - t[rows])
+
+
+def _antenna_residual(pose, velocity: np.ndarray, calibration: np.ndarray, z: np.ndarray, lag: float):
+    """GNSS residual [m, plane] ``p + R l + v (lag - dt) - z`` of one fix at its keyframe (pose ``R, p``, velocity
+    ``v`` [m/s]) with calibration ``(l [m, body], dt [s])``, and the keyframe's rotation ``R``."""
+    R = pose.rotation().matrix()
+    return pose.translation() + R @ calibration[:3] + velocity * (lag - calibration[3]) - z, R
+
+
+def _gnss_factor(gtsam, key_x: int, key_v: int, z: np.ndarray, lag: float, sigma: np.ndarray, at):
+    """One GNSS fix: the antenna position ``z`` [m, plane], measured ``dt`` seconds before its tag (``lag`` [s]
+    before the keyframe), equals ``p + R l + v (lag - dt)`` at its keyframe, white noise ``sigma`` [m].
+
+    Linearised at ``at`` (the robust pass's solution, or the RTS's) and kept as a ``LinearContainerFactor``
+    (evaluated in C++; GTSAM has no GNSS factor with a time offset). The factor is linear in ``p``, ``v``, ``l``
+    and ``dt`` but for the products ``R l`` and ``v dt``: the graph moves the attitude by hundredths of a degree
+    (``R l`` then changes by a fraction of a millimetre at a 2-m lever arm) and the neglected ``dv ddt`` is 0.5 mm
+    for a 5-cm/s velocity change and a 10-ms offset change. Pose3 tangent order: rotation (body), then
+    translation (body).
+    """
+    pose, velocity = at.atPose3(key_x), at.atVector(key_v)
+    calibration = at.atVector(CALIBRATION)
+    residual, R = _antenna_residual(pose, velocity, calibration, z, lag)
+    H_pose = np.hstack([lever_arm_rotation_jacobian(R, calibration[:3]), R]) / sigma[:, None]
+    H_v = np.eye(3) * (lag - calibration[3]) / sigma[:, None]
+    H_c = np.hstack([R, -velocity[:, None]]) / sigma[:, None]
+    linear = gtsam.JacobianFactor(key_x, H_pose, key_v, H_v, CALIBRATION, H_c, -residual / sigma,
+                                  gtsam.noiseModel.Unit.Create(3))
+    point = gtsam.Values()
+    point.insert(key_x, pose)
+    point.insert(key_v, velocity)
+    point.insert(CALIBRATION, calibration)
+    return gtsam.LinearContainerFactor(linear, point)
+
+
+def _inliers(values, fixes: _Fixes, lever: np.ndarray, offset: float, sigma: np.ndarray, threshold: float):
+    """Fixes whose whitened residual after the robust pass is within ``threshold`` (chi-square, 3 degrees of
+    freedom; ``cfg.gate_chi2``, 99.9 % by default: one good fix in a thousand is lost). The residual is against
+    the robust solution, which the fix itself pulled only weakly (the Cauchy kernel)."""
+    from gtsam.symbol_shorthand import V, X
+
+    calibration = np.concatenate([lever, [offset]])
+    d2 = np.empty(len(fixes.key))
+    for i, (k, z, lag) in enumerate(zip(fixes.key, fixes.z, fixes.lag, strict=True)):
+        residual, _ = _antenna_residual(values.atPose3(X(k)), values.atVector(V(k)), calibration, z, lag)
+        d2[i] = np.sum((residual / sigma) ** 2)
+    return d2 <= threshold
+
+
+def _optimise(gtsam, cfg: ProcessingConfig, factors_at: dict[int, list], extra: dict[int, list], values, n_keys: int):
+    """Optimise the graph of ``factors_at`` and ``extra`` (factors by keyframe) from ``values``: batch
+    Levenberg-Marquardt, or ISAM2 fed one keyframe at a time (``cfg.graph_solver``) as a real-time user would."""
+    if cfg.graph_solver != "isam2":
+        graph = gtsam.NonlinearFactorGraph()
+        for k in range(n_keys):
+            for factor in factors_at.get(k, []) + extra.get(k, []):
+                graph.add(factor)
+        return gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams()).optimize()
+    from gtsam.symbol_shorthand import B, U, V, X
+
+    isam = gtsam.ISAM2(gtsam.ISAM2Params())
+    for k in range(n_keys):
+        new_graph = gtsam.NonlinearFactorGraph()
+        for factor in factors_at.get(k, []) + extra.get(k, []):
+            new_graph.add(factor)
+        new_values = gtsam.Values()
+        keys = [X(k), V(k), B(k), U(k)] + ([LEVER, CALIBRATION] if k == 0 else [])
+        for key in keys:
+            if values.exists(key):
+                _copy_value(new_values, values, key)
+        isam.update(new_graph, new_values)
+    isam.update()
+    return isam.calculateEstimate()
+
+
+def _copy_value(target, source, key: int) -> None:
+    """Copy variable ``key`` of ``source`` into ``target`` (gtsam.Values), by its symbol's type."""
+    import gtsam
+
+    kind = chr(gtsam.Symbol(key).chr())
+    if kind == "x":
+        target.insert(key, source.atPose3(key))
+    elif kind == "b":
+        target.insert(key, source.atConstantBias(key))
+    elif kind == "l":
+        target.insert(key, source.atPoint3(key))
+    else:  # v, u, c: vectors
+        target.insert(key, source.atVector(key))
 
 
 def _key_rows(t: np.ndarray, valid_rows: np.ndarray, fix_rows: np.ndarray) -> np.ndarray:

@@ -207,7 +207,9 @@ def _gnss(cfg: SimConfig, fine: Trajectory, fine_rate: int, row_time: np.ndarray
     for start, length in gnss.outages:
         keep &= ~((rel >= start) & (rel < start + length))
     fix_time, rel = fix_time[keep], rel[keep]
-    idx = np.round(rel * fine_rate).astype(int)
+    if not -1.0 <= gnss.time_offset_s <= 1.0:
+        raise ValueError(f"GNSS time offset must be within 1 s, got {gnss.time_offset_s}")
+    idx = np.round((rel - gnss.time_offset_s) * fine_rate).astype(int)
     C_b_n = euler_to_dcm(fine.roll[idx], fine.pitch[idx], fine.yaw[idx])
     r_e = geodetic_to_ecef(fine.lat[idx], fine.lon[idx], fine.height[idx])
     r_ant = r_e + lever_arm_ecef(fine.lat[idx], fine.lon[idx], C_b_n, cfg.lever_arm_gnss_m)

@@ -116,7 +116,8 @@ class GnssModel:
     ``rate_hz``: 1 (default), 5, 10 Hz or any rate; fixes fall on multiples of the period. ``latency_s``: the
     range [s] of the uniform delay before a fix appears in the POS log, capped at 0.5 and 0.9 periods so the
     fixes appear in order at high rates. Outages (start, length) and outliers (time, size) in seconds from the
-    flight start and metres.
+    flight start and metres. ``time_offset_s``: each fix is the antenna's position this long before its time tag
+    (a receiver's time-tag error; what georef calls the GNSS latency, ``gnss_latency``), at most 1 s.
     """
 
     sigma_neu_m: tuple[float, float, float] = (1.0, 1.0, 2.0)
@@ -124,6 +125,7 @@ class GnssModel:
     outages: list[tuple[float, float]] = field(default_factory=list)  # (start s from flight start, length s)
     outliers: list[tuple[float, float]] = field(default_factory=list)  # (time s from start, size m)
     latency_s: tuple[float, float] = (0.05, 0.3)
+    time_offset_s: float = 0.0
 
 
 @dataclass
