@@ -24,6 +24,7 @@ when the flight did not run), ``summary`` (:meth:`georef.pipeline.ProcessResult.
 
 from __future__ import annotations
 
+import json
 import time
 import traceback
 from collections.abc import Callable
@@ -84,9 +85,12 @@ def discover(source: Path | str) -> list[FlightJob]:
 
 
 def process_flight(job: FlightJob, output_root: str, method: str | None = None,
-                   exports: tuple[tuple[str, str], ...] = ()) -> dict:
+                   exports: tuple[tuple[str, str], ...] = (),
+                   calibration_prior: tuple[list, list] | None = None) -> dict:
     """Process one flight (runs on a worker); never raises: failures come back as a status row. ``exports``:
-    (format, file name) pairs written beside ``eo.csv`` in the flight's folder."""
+    (format, file name) pairs written beside ``eo.csv`` in the flight's folder. ``calibration_prior``: the graph's
+    prior on (lever arm [m], GNSS time offset [s]) as (mean, covariance), replacing the flight's own (campaign
+    calibration); the row then carries ``calibration``, the graph's reduction to those variables."""
     from georef.config import ProcessingConfig, load_config
     from georef.frames.heights import OutputFrames
     from georef.io.atomic import atomic_group
@@ -98,12 +102,15 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None,
     out = Path(output_root) / job.flight
     out.mkdir(parents=True, exist_ok=True)
     row: dict = dict.fromkeys(SUMMARY_COLUMNS)
-    row.update(flight=job.flight, status="failed", method=method or "", checks=None, summary=None, outputs=[])
+    row.update(flight=job.flight, status="failed", method=method or "", checks=None, summary=None, outputs=[],
+               calibration=None)
     log_lines = [f"flight {job.flight}", f"POS {job.pos}", f"camera {job.camera}", f"config {job.config}"]
     try:
         cfg = load_config(job.config) if job.config else ProcessingConfig()
         if method:
             cfg = cfg.updated(method=method)
+        if calibration_prior is not None:
+            cfg = cfg.updated(calibration_prior=calibration_prior)
         specs = [ExportSpec("csv", out / "eo.csv"), *(ExportSpec(fmt, out / name) for fmt, name in exports)]
         frames = (OutputFrames(cfg.crs, cfg.height, cfg.vertical_crs)
                   if cfg.crs or cfg.height != "ellipsoidal" else None)
@@ -115,6 +122,9 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None,
         row["outputs"] += [{"what": "table" if k == 0 else "export", "format": spec.fmt, "path": str(spec.path)}
                            for k, spec in enumerate(specs)]
         summary = result.summary()
+        reduction = result.nav.info.get("graph_calibration")
+        if reduction is not None:
+            row["calibration"] = {key: np.asarray(value, float).tolist() for key, value in reduction.items()}
         gnss = result.nav.gnss
         used = gnss.status >= 1
         nis = gnss.normalised_innovation_sq[used]
@@ -181,42 +191,46 @@ def start_local_cluster(workers: int = 2, tuned: bool = True):
 def run_batch(jobs: list[FlightJob], output_root: Path | str, method: str | None = None,
               scheduler: str | None = None, workers: int = 2,
               on_done: Callable[[dict], None] | None = None,
-              exports: tuple[tuple[str, str], ...] = ()) -> pd.DataFrame:
+              exports: tuple[tuple[str, str], ...] = (), shared_calibration: bool = False) -> pd.DataFrame:
     """Process every job on Dask distributed; returns (and writes) the summary table. ``exports``: (format, file
     name) pairs every flight writes beside its ``eo.csv``.
 
     ``scheduler`` is an address such as ``tcp://host:8786``; without it a ``LocalCluster`` of ``workers``
     single-threaded processes is started (:func:`start_local_cluster`) and closed here.
+
+    ``shared_calibration`` (``method`` must be ``graph``): one GNSS lever arm and time offset for all flights
+    (:mod:`georef.campaign`): every flight is solved, reduced to those variables on its worker, the driver
+    combines them and re-solves each flight with the campaign's estimate from the other flights as its prior,
+    until the estimate settles; writes ``calibration.json`` and ``calibration.toml`` (a ``--config`` fragment).
+    ``on_done`` then sees every round's rows (``row["round"]``, from 1); the summary is the last round's.
     """
-    from dask.distributed import Client, as_completed
+    from dask.distributed import Client
 
     output_root = Path(output_root)
     output_root.mkdir(parents=True, exist_ok=True)
+    if shared_calibration and method != "graph":
+        raise ValueError("--shared-calibration needs --method graph: the calibration is a variable of the graph")
     cluster = None
     if scheduler is None:
         cluster = start_local_cluster(workers)
         client = Client(cluster)
     else:
         client = Client(scheduler)
-    rows = []
     try:
-        futures = [client.submit(process_flight, job, str(output_root), method, tuple(exports),
-                                 key=f"flight-{job.flight}", pure=False) for job in jobs]
-        for future in as_completed(futures):
-            try:
-                row = future.result()
-            except Exception as exc:  # noqa: BLE001 - a worker that died
-                flight = future.key.removeprefix("flight-") if isinstance(future.key, str) else str(future.key)
-                row = dict.fromkeys(SUMMARY_COLUMNS)
-                row.update(flight=flight, status="failed", message=f"worker error: {exc}", failure="internal",
-                           checks=None, summary=None, outputs=[])
-            rows.append(row)
-            if on_done is not None:
-                on_done(row)
+        if shared_calibration:
+            rows, campaign = _campaign(client, jobs, output_root, method, exports, on_done)
+        else:
+            rows, campaign = _round(client, jobs, output_root, method, exports, {}, on_done, 0), None
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
+    if campaign is not None:
+        with atomic_write(output_root / "calibration.json") as handle:
+            json.dump(campaign.to_json(), handle, indent=2)
+            handle.write("\n")
+        with atomic_write(output_root / "calibration.toml") as handle:
+            handle.write(campaign.config_toml())
     order = {job.flight: i for i, job in enumerate(jobs)}
     summary = pd.DataFrame(rows, columns=SUMMARY_COLUMNS).sort_values("flight", key=lambda s: s.map(order))
     for column in ("frames", "frames_flagged", "gnss_epochs", "rejected_fixes"):
@@ -224,3 +238,67 @@ def run_batch(jobs: list[FlightJob], output_root: Path | str, method: str | None
     with atomic_write(output_root / "batch_summary.csv") as handle:
         summary.to_csv(handle, index=False, lineterminator="\n")
     return summary.reset_index(drop=True)
+
+
+def _round(client, jobs: list[FlightJob], output_root: Path, method: str | None, exports, priors: dict,
+           on_done: Callable[[dict], None] | None, round_number: int) -> list[dict]:
+    """One task per flight (``priors``: the calibration prior per flight name, absent = the flight's own)."""
+    from dask.distributed import as_completed
+
+    futures = [client.submit(process_flight, job, str(output_root), method, tuple(exports), priors.get(job.flight),
+                             key=f"flight-{job.flight}-{round_number}", pure=False) for job in jobs]
+    rows = []
+    for future in as_completed(futures):
+        try:
+            row = future.result()
+        except Exception as exc:  # noqa: BLE001 - a worker that died
+            flight = future.key.removeprefix("flight-").rsplit("-", 1)[0] if isinstance(future.key, str) \
+                else str(future.key)
+            row = dict.fromkeys(SUMMARY_COLUMNS)
+            row.update(flight=flight, status="failed", message=f"worker error: {exc}", failure="internal",
+                       checks=None, summary=None, outputs=[], calibration=None)
+        if round_number:
+            row["round"] = round_number
+        rows.append(row)
+        if on_done is not None:
+            on_done(row)
+    return rows
+
+
+def _campaign(client, jobs: list[FlightJob], output_root: Path, method: str | None, exports,
+              on_done: Callable[[dict], None] | None):
+    """Rounds of per-flight solves until the campaign's calibration settles (:mod:`georef.campaign`)."""
+    from georef.campaign import MAX_ROUNDS, FlightReduction, combine, leave_one_out, settled
+
+    def reductions_of(rows: list[dict]) -> dict[str, FlightReduction]:
+        return {row["flight"]: FlightReduction.from_dict(row["calibration"]) for row in rows
+                if row["status"] == "ok" and row.get("calibration")}
+
+    rows = _round(client, jobs, output_root, method, exports, {}, on_done, 1)
+    reductions = reductions_of(rows)
+    if not reductions:
+        return rows, None
+    configured = {name: (r.prior_mean, r.prior_covariance) for name, r in reductions.items()}
+    estimate = combine(reductions, configured, rounds=1)
+    for round_number in range(2, MAX_ROUNDS + 1):
+        priors = {}
+        for name in reductions:
+            prior = leave_one_out(estimate, reductions, name)
+            priors[name] = None if prior is None else (prior[0].tolist(), prior[1].tolist())
+        rows = _round(client, jobs, output_root, method, exports,
+                      {name: prior for name, prior in priors.items() if prior is not None}, on_done, round_number)
+        # a flight solved with the campaign's prior: its data part is taken against that prior
+        reductions.update(reductions_of(rows))
+        previous, estimate = estimate, combine(reductions, configured, rounds=round_number)
+        if settled(estimate, previous):
+            break
+    for row in rows:
+        flight = estimate.flights.get(row["flight"])
+        if flight is not None and not flight["consistent"]:
+            row["qc"] = "failed: campaign calibration" if row.get("qc") in (None, "passed") else \
+                f"{row['qc']}, campaign calibration"
+            detail = (f"fail campaign calibration: this flight's lever arm/time offset disagree with the other "
+                      f"flights' (chi2 {flight['chi2']:.1f}, {flight['dof']} dof, p {flight['p_value']:.2g}): a moved "
+                      f"antenna or a changed receiver? It keeps its own estimate")
+            row["qc_details"] = f"{row['qc_details']} | {detail}" if row.get("qc_details") else detail
+    return rows, estimate

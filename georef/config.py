@@ -217,6 +217,17 @@ def load_config(path: Path | str, base: ProcessingConfig | None = None) -> Proce
         raise InputError(path, None, None, str(exc)) from None
 
 
+def load_configs(paths: list[Path] | list[str] | Path | str | None) -> ProcessingConfig:
+    """Read ``flight.toml`` files in order, each later one changing only the keys it names (``None`` or an empty
+    list: the defaults)."""
+    if paths is None:
+        return ProcessingConfig()
+    cfg = ProcessingConfig()
+    for path in [paths] if isinstance(paths, (str, Path)) else paths:
+        cfg = load_config(path, base=cfg)
+    return cfg
+
+
 def config_to_toml(cfg: ProcessingConfig) -> str:
     """The configuration as a ``flight.toml`` document (non-default and commonly edited values)."""
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import json
 import os
 import sys
 from collections.abc import Callable
@@ -27,7 +28,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from georef.config import ProcessingConfig, load_config
+from georef.config import load_configs
 from georef.io.errors import GeorefError
 
 from .options import (
@@ -232,7 +233,7 @@ def process(
 
     _one_stdout(**{"-o": output, "--summary-json": summary_json})
     _not_stdout(report, "--report", "the report is written atomically as a file")
-    cfg = load_config(config) if config else ProcessingConfig()
+    cfg = load_configs(config)
     cfg = cfg.updated(
         method=plain(method), lever_arm_gnss=_triple(gnss_lever_arm, "--gnss-lever-arm", "metres"),
         lever_arm_camera=_triple(camera_lever_arm, "--camera-lever-arm", "metres"),
@@ -285,7 +286,9 @@ def process(
 
                 step("writing report")
                 command = shlex.join(["georef", *sys.argv[1:]]) if Path(sys.argv[0]).name == "georef" else None
-                write_report(result, report, verdict=verdict, inputs={"configuration": config}, command=command)
+                configs = {f"configuration {i + 1}" if len(config or []) > 1 else "configuration": path
+                           for i, path in enumerate(config or [])}
+                write_report(result, report, verdict=verdict, inputs=configs, command=command)
         for spec in specs:  # standard output last, once the files are in place
             if is_stdout(spec.path):
                 write(spec)
@@ -534,7 +537,7 @@ def fuse(
 
     method = plain(method)
     _one_stdout(**{"-o": output, "--summary-json": summary_json})
-    cfg = load_config(config) if config else ProcessingConfig()
+    cfg = load_configs(config)
     cfg = cfg.updated(lever_arm_gnss=_triple(gnss_lever_arm, "--gnss-lever-arm", "metres"),
                       gnss_sigma=_triple(gnss_sigma, "--gnss-sigma", "metres"), imu_preset=imu_preset,
                       gnss_latency=gnss_latency, vehicle=plain(vehicle), magnetic_declination=magnetic_declination)
@@ -632,6 +635,11 @@ def batch(
                          "default file names metashape.csv, pix4d.csv, geo.txt, parge.txt, stations.geojson, "
                          "stations.kml) or FORMAT:NAME; repeatable. CRS, heights and image names come from each "
                          "flight's flight.toml.")] = None,
+    shared_calibration: Annotated[bool, typer.Option(
+        "--shared-calibration", help="With --method graph: estimate one GNSS lever arm [m, body] and time offset "
+                                     "[s] from all flights (one installation), re-solve every flight with it, and "
+                                     "flag flights that disagree (chi-square); writes calibration.json and "
+                                     "calibration.toml (feed it back with --config).")] = False,
     quiet: Quiet = False,
     summary_json: SummaryJson = None,
 ) -> None:
@@ -650,13 +658,20 @@ def batch(
 
     specs = [parse_folder_export(text) for text in export or []]  # checked before any flight runs
     exports = tuple((spec.fmt, str(spec.path)) for spec in specs)
+    if shared_calibration and plain(method) != "graph":
+        raise typer.BadParameter("needs --method graph (the calibration is a variable of the factor graph)",
+                                 param_hint="--shared-calibration")
     jobs = discover(source)
     rows: list[dict] = []
     settings = {"method": plain(method), "scheduler": scheduler, "workers": workers,
-                "exports": [f"{fmt}:{name}" for fmt, name in exports]}
+                "exports": [f"{fmt}:{name}" for fmt, name in exports], "shared_calibration": shared_calibration}
+
+    def keep(row: dict) -> None:  # a campaign's earlier rounds are superseded by its last
+        rows[:] = [r for r in rows if r["flight"] != row["flight"]] + [row]
+
     if quiet:
         summary = run_batch(jobs, output, method=plain(method), scheduler=scheduler, workers=workers,
-                            on_done=rows.append, exports=exports)
+                            on_done=keep, exports=exports, shared_calibration=shared_calibration)
     else:
         progress = Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
                             TextColumn("{task.completed}/{task.total} flights"), TimeElapsedColumn(),
@@ -664,20 +679,33 @@ def batch(
         with progress:
             task = progress.add_task("processing flights", total=len(jobs))
 
+            current = {"round": 1}
+
             def done(row: dict) -> None:
-                rows.append(row)
+                keep(row)
+                step = f"round {row['round']}: " if "round" in row else ""
+                if row.get("round", 1) != current["round"]:  # a campaign's next round
+                    current["round"] = row["round"]
+                    progress.reset(task, total=len(jobs))
                 progress.advance(task)
-                progress.update(task, description=f"{escape(str(row['flight']))}: {escape(str(row['status']))}")
+                progress.update(task, description=f"{step}{escape(str(row['flight']))}: "
+                                                  f"{escape(str(row['status']))}")
 
             summary = run_batch(jobs, output, method=plain(method), scheduler=scheduler, workers=workers,
-                                on_done=done, exports=exports)
+                                on_done=done, exports=exports, shared_calibration=shared_calibration)
     order = {job.flight: i for i, job in enumerate(jobs)}
     rows.sort(key=lambda row: order.get(row["flight"], len(order)))
     code = batch_exit_code(rows, EXIT_USER_ERROR, EXIT_INTERNAL_ERROR, EXIT_QC_FAILED)
+    outputs = [{"what": "summary", "format": "csv", "path": str(output / "batch_summary.csv")}]
+    calibration_file = output / "calibration.json"
+    if shared_calibration and calibration_file.exists():
+        outputs += [{"what": "calibration", "format": "json", "path": str(calibration_file)},
+                    {"what": "calibration config", "format": "toml", "path": str(output / "calibration.toml")}]
     if summary_json is not None:
         write_json(summary_json, batch_document(
-            code, source=source, settings=settings, rows=rows, columns=SUMMARY_COLUMNS,
-            outputs=[{"what": "summary", "format": "csv", "path": str(output / "batch_summary.csv")}]))
+            code, source=source, settings=settings, rows=rows, columns=SUMMARY_COLUMNS, outputs=outputs))
+    if not quiet and len(outputs) > 1:
+        _print_campaign(json.loads(calibration_file.read_text(encoding="utf-8")), summary_json)
     if not quiet:
         shown = ("flight", "status", "method", "frames", "rejected_fixes", "qc", "runtime_s", "message")
         table = Table(title=f"georef batch -> {escape(str(output))}/batch_summary.csv", title_justify="left")
@@ -701,6 +729,30 @@ def batch(
                       highlight=False)
     if code:
         raise typer.Exit(code=code)
+
+
+def _print_campaign(calibration: dict, summary_json: Path | None) -> None:
+    """The campaign's calibration and each flight's own estimate, as a table."""
+    def fmt(values, sigmas, scale: float = 1.0, digits: int = 3) -> str:
+        values, sigmas = np.atleast_1d(values), np.atleast_1d(sigmas)
+        return ", ".join("-" if v is None else f"{v * scale:.{digits}f} ± {s * scale:.{digits}f}"
+                         for v, s in zip(values, sigmas, strict=True))
+
+    table = Table(title=f"campaign calibration ({calibration['rounds']} rounds): lever arm [m, body x y z], "
+                        "GNSS time offset [ms]", title_justify="left")
+    for column in ("flight", "lever arm", "time offset", "chi2 (dof)", "consistent"):
+        table.add_column(column)
+    table.add_row("campaign", fmt(calibration["gnss_lever_arm_m"], calibration["gnss_lever_arm_sigma_m"]),
+                  fmt(calibration["gnss_time_offset_s"], calibration["gnss_time_offset_sigma_s"], 1e3, 1), "", "")
+    for name, flight in calibration["flights"].items():
+        lever = [v if v is not None else np.nan for v in flight["gnss_lever_arm_m"]]
+        lever_sigma = [v if v is not None else np.nan for v in flight["gnss_lever_arm_sigma_m"]]
+        offset = flight["gnss_time_offset_s"] if flight["gnss_time_offset_s"] is not None else np.nan
+        offset_sigma = flight["gnss_time_offset_sigma_s"] if flight["gnss_time_offset_sigma_s"] is not None else np.nan
+        table.add_row(escape(name), fmt(lever, lever_sigma), fmt(offset, offset_sigma, 1e3, 1),
+                      f"{flight['chi2']:.1f} ({flight['dof']})",
+                      "yes" if flight["consistent"] else "[bold red]NO[/]")
+    _messages(summary_json).print(table)
 
 
 def _cell(value: Any) -> str:
@@ -728,7 +780,7 @@ def info(
     """Describe a POS log: format, span, rates, GNSS epochs and gaps, quirks repaired, columns found."""
     from georef.io.pos import read_pos
 
-    cfg = load_config(config) if config else ProcessingConfig()
+    cfg = load_configs(config)
     rate = gnss_rate if gnss_rate is not None else cfg.gnss_rate_hz
     log = read_pos(pos, column_names=cfg.pos_columns, gnss_rate_hz=rate)
     table = Table(title=escape(str(pos)), show_header=False, title_justify="left")

@@ -67,8 +67,9 @@ VehicleChoice = choice("Vehicle", VEHICLES)
 Quiet = Annotated[bool, typer.Option(
     "--quiet", "-q", help="Print nothing but errors (and failed quality checks, for the commands that run them).")]
 Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Also list every input notice.")]
-ConfigFile = Annotated[Path | None, typer.Option(
-    "--config", help="flight.toml with the flight's settings (docs/formats.md: its sections and keys); "
+ConfigFile = Annotated[list[Path] | None, typer.Option(
+    "--config", help="flight.toml with the flight's settings (docs/formats.md: its sections and keys); repeatable, "
+                     "later files win key by key (e.g. flight.toml, then a campaign's calibration.toml); "
                      "command-line options win.")]
 SummaryJson = Annotated[Path | None, typer.Option(
     "--summary-json", help="Also write a machine-readable summary (JSON: the figures, the QC verdict with its "

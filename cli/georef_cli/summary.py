@@ -32,6 +32,13 @@ def _settings(settings: Any) -> dict[str, Any] | None:
     return dict(settings)
 
 
+def _paths(value: Path | str | list | None) -> str | list[str] | None:
+    """An input as JSON: its path, a list for a repeated option given more than once (``--config``), or null."""
+    if isinstance(value, list):
+        return None if not value else str(value[0]) if len(value) == 1 else [str(p) for p in value]
+    return None if value is None else str(value)
+
+
 def run_document(command: str, exit_code: int, *, inputs: Mapping[str, Path | str | None], settings: Any,
                  outputs: list[dict[str, str]], summary: Mapping[str, Any], verdict: Verdict) -> dict[str, Any]:
     """The summary of one ``process`` or ``fuse`` run."""
@@ -40,7 +47,7 @@ def run_document(command: str, exit_code: int, *, inputs: Mapping[str, Path | st
         "georef_version": georef_version(),
         "command": command,
         "exit_code": exit_code,
-        "inputs": {k: None if v is None else str(v) for k, v in inputs.items()},
+        "inputs": {k: _paths(v) for k, v in inputs.items()},
         "settings": _settings(settings),
         "outputs": outputs,
         "summary": dict(summary),
