@@ -41,9 +41,11 @@ from georef.frames.rotations import (
     quat_to_dcm,
     quat_to_rotvec,
     rotvec_to_quat,
+    skew,
     wrap_pi,
 )
-from georef.fusion.ins import InsInputs, inputs_from_pos, solve_ins, unit_drift_psd
+from georef.fusion.ins import OUTAGE_S, InsInputs, _gap_scale, inputs_from_pos, solve_ins, unit_drift_psd
+from georef.fusion.ins_layout import NHC_GATE, NHC_LEVER
 from georef.fusion.solution import NavSolution
 
 CAUCHY_K = 4.0
@@ -54,6 +56,8 @@ MAX_KEY_GAP = 1.5  # s; longer gaps between fixes get keyframes about once a sec
 #: ("indeterminate system"). 1e-6 (1 mm over a second between keyframes, against metre-level GNSS) keeps the
 #: system solvable and moves no position by more than a millimetre on the bundled flight.
 INTEGRATION_COVARIANCE = 1e-6
+GRAPH_OUTAGE_SCALE = False
+GRAPH_NHC = True
 MIN_EDGE_GAP = 0.5  # s; the first/last solved row gets its own keyframe when it is farther than this from a fix
 
 
@@ -91,14 +95,9 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
     C_n_t_rows = C_e_t @ C_n_e(rts.lat, rts.lon)
     # the noise model the EKF + RTS fitted to this flight's data
     noise = rts.diagnostics.noise
-    params = gtsam.PreintegrationCombinedParams.MakeSharedD(float(normal_gravity(lat0, h0)))
-    params.setAccelerometerCovariance(np.diag([noise.q_vel_h, noise.q_vel_h, noise.q_vel_v]))
-    params.setGyroscopeCovariance(np.diag([noise.q_att_h, noise.q_att_h, noise.q_att_v]))
-    params.setIntegrationCovariance(np.eye(3) * INTEGRATION_COVARIANCE)
-    params.setBiasAccCovariance(np.eye(3) * max(noise.q_ba, 1e-12))
-    params.setBiasOmegaCovariance(np.eye(3) * max(noise.q_bg, 1e-16))
-    params.setOmegaCoriolis(C_e_t @ C_n_e(lat0, lon0) @ earth_rate_n(lat0))
-
+    gravity, omega = float(normal_gravity(lat0, h0)), C_e_t @ C_n_e(lat0, lon0) @ earth_rate_n(lat0)
+    params = _preintegration_params(gtsam, noise, gravity, omega, 1.0, 1.0)
+    q_scale = _process_noise_scale(rts, inputs, gnss.time[use], cfg)
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     factors_at: dict[int, list] = {}
@@ -127,7 +126,11 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
     accel = inputs.accel + np.where(np.isfinite(g_fix), g_fix, 0.0)
     for k in range(1, len(key_rows)):
         a, b = key_rows[k - 1], key_rows[k]
-        pim = gtsam.PreintegratedCombinedMeasurements(params, values.atConstantBias(B(k - 1)))
+        # the EKF's process-noise factors over this interval (IMU gaps, GNSS outages), averaged over its rows: the
+        # preintegrated rotation and velocity variances (integrals of the noise density) are then the EKF's
+        scale = np.average(q_scale[a + 1:b + 1], axis=0, weights=np.diff(t[a:b + 1]))
+        step = params if np.all(scale == 1.0) else _preintegration_params(gtsam, noise, gravity, omega, *scale)
+        pim = gtsam.PreintegratedCombinedMeasurements(step, values.atConstantBias(B(k - 1)))
         for r in range(a, b):
             dt = t[r + 1] - t[r]
             pim.integrateMeasurement(0.5 * (accel[r] + accel[r + 1]), 0.5 * (gyro[r] + gyro[r + 1]), dt)
@@ -160,6 +163,7 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
     aiding = bool(cfg.unit_aiding and inputs.unit_rpy is not None)
     if aiding:
         _add_unit_attitude(gtsam, U, X, inputs.unit_rpy, rts, t, key_rows, C_n_t_rows, cfg, values, factors_at)
+    nhc_used = _add_ground_vehicle(gtsam, X, V, rts, gyro, key_rows, values, factors_at)
     for k in range(len(key_rows)):
         for factor in factors_at.get(k, []):
             graph.add(factor)
@@ -234,6 +238,7 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
                  "graph_lever_arm_prior_sigma_m": lever_prior,
                  "graph_rts_separation_sigma": separation,
                  "graph_rts_attitude_separation_sigma": attitude_separation, "keyframes": n_keys,
+                 "graph_nhc_factors": nhc_used,
                  "graph_error_initial": graph.error(values), "graph_error_final": graph.error(result)})
     return NavSolution(method="graph", time=t, r_e=r_e, v_e=v_e, lat=lat, lon=lon, height=height, roll=roll,
                        pitch=pitch, yaw=yaw, pos_var_n=pos_var_rows, att_sigma=att_sigma, valid=valid, gnss=rts.gnss,
@@ -242,6 +247,35 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
 
 LEVER_ARM_GIVEN_SIGMA = 0.05  # m, a lever arm taped on the installation
 LEVER_ARM_FREE_SIGMA = 10.0  # m, no lever arm given: only keeps the variable determinate
+
+
+def _preintegration_params(gtsam, noise, gravity: float, omega: np.ndarray, nav_scale: float, bias_scale: float):
+    """GTSAM preintegration parameters with the noise model the EKF + RTS fitted (``noise``: white specific force
+    [m^2/s^3] and angular rate [rad^2/s], bias drives), those scaled by ``nav_scale`` and ``bias_scale``; plane
+    gravity [m/s^2] down and the Earth rate ``omega`` [rad/s] in the plane."""
+    params = gtsam.PreintegrationCombinedParams.MakeSharedD(gravity)
+    params.setAccelerometerCovariance(np.diag([noise.q_vel_h, noise.q_vel_h, noise.q_vel_v]) * nav_scale)
+    params.setGyroscopeCovariance(np.diag([noise.q_att_h, noise.q_att_h, noise.q_att_v]) * nav_scale)
+    params.setIntegrationCovariance(np.eye(3) * INTEGRATION_COVARIANCE)
+    params.setBiasAccCovariance(np.eye(3) * max(noise.q_ba, 1e-12) * bias_scale)
+    params.setBiasOmegaCovariance(np.eye(3) * max(noise.q_bg, 1e-16) * bias_scale)
+    params.setOmegaCoriolis(omega)
+    return params
+
+
+def _process_noise_scale(rts, inputs, fix_times: np.ndarray, cfg) -> np.ndarray:
+    """Per-row factors (N, 2) on the navigation noise and the bias drives of the interval ending at each row, as
+    the EKF's final pass: its IMU-gap factors (linearly interpolated dropouts, :func:`georef.fusion.ins.imu_gaps`;
+    the KITTI log has 0.1-0.5 s runs of them) and, when ``GRAPH_OUTAGE_SCALE``, its fitted outage factor inside
+    GNSS outages."""
+    scale = _gap_scale(rts.time, inputs.gaps, rts.diagnostics.noise)
+    if GRAPH_OUTAGE_SCALE:
+        rows = np.searchsorted(rts.time, fix_times, side="left")
+        t = rts.time
+        for a, b in zip(rows[:-1], rows[1:], strict=True):
+            if t[b] - t[a] > OUTAGE_S:
+                scale[a + 1:b + 1] *= rts.diagnostics.noise.outage_scale
+    return scale
 
 
 def _lever_arm_prior_sigma(cfg: ProcessingConfig) -> float:
@@ -301,6 +335,50 @@ def _unit_factor(gtsam, key_x: int, key_u: int, z: np.ndarray, C_t_n: np.ndarray
     at.insert(key_x, pose)
     at.insert(key_u, u)
     return gtsam.LinearContainerFactor(linear, at)
+
+
+def _nhc_factor(gtsam, key_x: int, key_v: int, pose, v_t: np.ndarray, sigma: np.ndarray):
+    """A ground vehicle's non-holonomic constraint at one keyframe: the body-frame lateral and vertical velocity
+    ``(C_b_t^T v_t)_y,z`` [m/s] are zero, with sigmas ``sigma`` (2,) [m/s]; ``pose`` (``gtsam.Pose3``: body-to-plane
+    rotation, plane position) and ``v_t`` (plane velocity [m/s]) are the linearisation point.
+
+    Linearised once at the RTS solution and kept as a ``LinearContainerFactor`` (evaluated in C++; see
+    :func:`_unit_factor`). With the body rotation ``R Exp(xi)``, ``v_b = R^T v`` moves by ``[v_b x] xi``
+    (:func:`georef.frames.skew`); the Pose3 tangent is (rotation, translation) and the constraint does not depend
+    on the translation; ``dv_b / dv_t = R^T``.
+    """
+    R = pose.rotation().matrix()
+    v_b = R.T @ v_t
+    H_x = np.hstack([skew(v_b)[1:], np.zeros((2, 3))]) / sigma[:, None]
+    H_v = R.T[1:] / sigma[:, None]
+    linear = gtsam.JacobianFactor(key_x, H_x, key_v, H_v, -v_b[1:] / sigma, gtsam.noiseModel.Unit.Create(2))
+    at = gtsam.Values()
+    at.insert(key_x, pose)
+    at.insert(key_v, v_t)
+    return gtsam.LinearContainerFactor(linear, at)
+
+
+def _add_ground_vehicle(gtsam, X, V, rts, gyro, key_rows, values, factors_at) -> int:
+    """Non-holonomic factors (:func:`_nhc_factor`) at every keyframe when the EKF + RTS applied the constraint
+    (``cfg.vehicle = "ground"``, or ``"auto"`` and its ground-vehicle test passed), with its variances: the fitted
+    ``r_nhc`` [m^2/s^2] plus, as the EKF, the IMU's motion about the point ``NHC_LEVER`` [m] away where the
+    constraint holds (yaw rate for the lateral, pitch rate for the vertical; gyro minus the RTS gyro bias).
+    Keyframes where the RTS solution itself violates the constraint beyond the EKF's gate (a skid) get none.
+    Returns the number of factors added."""
+    if not rts.diagnostics.ground_vehicle or not GRAPH_NHC:
+        return 0
+    r_nhc = rts.diagnostics.noise.r_nhc
+    rate = gyro[key_rows] - rts.info["gyro_bias"][key_rows]
+    sigma = np.sqrt(r_nhc + (NHC_LEVER * rate[:, [2, 1]]) ** 2)
+    added = 0
+    for k in range(len(key_rows)):
+        pose, v_t = values.atPose3(X(k)), values.atVector(V(k))
+        v_b = pose.rotation().matrix().T @ v_t
+        if np.sum((v_b[1:] / sigma[k]) ** 2) > NHC_GATE or not np.all(np.isfinite(sigma[k])):
+            continue
+        factors_at.setdefault(k, []).append(_nhc_factor(gtsam, X(k), V(k), pose, v_t, sigma[k]))
+        added += 1
+    return added
 
 
 DRIFT_PRIOR = np.radians(2.0) / 60.0  # rad/s, as the EKF without a recovered yaw offset
