@@ -239,6 +239,7 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
                  "graph_rts_separation_sigma": separation,
                  "graph_rts_attitude_separation_sigma": attitude_separation, "keyframes": n_keys,
                  "graph_nhc_factors": len(nhc_sigma),
+                 **_fixes_downweighted(gtsam, graph, result, sigma),
                  "graph_error_initial": graph.error(values), "graph_error_final": graph.error(result)})
     return NavSolution(method="graph", time=t, r_e=r_e, v_e=v_e, lat=lat, lon=lon, height=height, roll=roll,
                        pitch=pitch, yaw=yaw, pos_var_n=pos_var_rows, att_sigma=att_sigma, valid=valid, gnss=rts.gnss,
@@ -374,6 +375,14 @@ def _add_ground_vehicle(gtsam, X, V, rts, gyro, key_rows, values, factors_at) ->
         factors_at.setdefault(k, []).append(_nhc_factor(gtsam, X(k), V(k), pose, v_t, sigma[k]))
         added[k] = sigma[k]
     return added
+
+
+def _fixes_downweighted(gtsam, graph, result, sigma: np.ndarray) -> dict[str, int]:
+    """GNSS fix factors in ``graph`` and how many of them end beyond ``CAUCHY_K`` of their sigmas [m] (N, E, D)
+    at ``result``: the Cauchy kernel gives those less than half their weight."""
+    residuals = [np.linalg.norm(factor.unwhitenedError(result) / sigma) for factor in
+                 (graph.at(i) for i in range(graph.size())) if isinstance(factor, gtsam.GPSFactorArmCalib)]
+    return {"graph_fixes": len(residuals), "graph_fixes_downweighted": int(np.sum(np.array(residuals) > CAUCHY_K))}
 
 
 def _relinearise_ground_vehicle(gtsam, X, V, graph, result, sigma: dict[int, np.ndarray]):
