@@ -8,7 +8,11 @@
 * Keyframes at every GNSS fix (the first IMU row after it) and, where fixes are more than 1.5 s apart, about
   once a second; IMU preintegration between them (``CombinedImuFactor``: pose, velocity and bias random walks);
   GNSS position factors through the antenna lever arm (``GPSFactorArm``) with a Cauchy robust kernel
-  (k = 4 sigma) against outliers; loose priors at the first keyframe.
+  (k = 4 sigma) against outliers; loose priors at the first keyframe. Over IMU gaps the preintegration noise is
+  raised as the EKF raises it (:func:`_process_noise_scale`).
+* A ground vehicle (when the EKF + RTS applied the non-holonomic constraint): zero lateral and vertical body
+  velocity at every keyframe with the EKF's sigmas (:func:`_add_ground_vehicle`), linearised at the RTS
+  solution, then once more at the optimum.
 * The POS unit's own attitude (``cfg.unit_aiding`` and ROLL/PITCH/YAW in the log), the same model as the EKF:
   a variable ``U = (e_r, e_p, d, d_dot)`` [rad, rad, rad, rad/s] per keyframe; a factor
   ``(roll + e_r, pitch + e_p, yaw - d) - (roll_u, pitch_u, yaw_u)`` with white sigma ``unit_angle_noise``
