@@ -113,11 +113,14 @@ def test_graph_does_not_crash_on_a_short_tactical_flight_with_an_outage(tmp_path
     assert codes == {"graph": 4, "rts": 4}
 
 
-def test_graph_on_kitti_is_flagged_when_it_departs_from_rts():
-    """On KITTI (a car; the graph has no ground-vehicle constraints) the graph drifts to tens of metres in the
-    outages while its sigma claims about a metre; the graph-vs-rts check must fail it, not pass it."""
+def test_graph_on_kitti_outages_with_ground_vehicle_constraints():
+    """KITTI (a real car; the last 20 s of every minute of fixes withheld): with the non-holonomic factors and the
+    EKF's process noise over the log's interpolated IMU dropouts, the graph's horizontal RMS at the withheld fixes
+    is at most 1.0 m (0.88 m measured; 29.7 m without either). QC still fails it against the RTS: the free lever
+    arm takes up the fixes' time-tag offset (0.5 m forward) and the attitudes differ by up to 31 of the graph's
+    sigma after the longest run of interpolated IMU samples; the check must keep saying so."""
     from georef.config import ProcessingConfig
-    from georef.datasets.kitti import load_kitti, subset, withheld
+    from georef.datasets.kitti import load_kitti, score_outages, subset, withheld
     from georef.fusion.graph import solve_graph_inputs
     from georef.fusion.ins import InsInputs
     from georef.qc import assess
@@ -125,8 +128,39 @@ def test_graph_on_kitti_is_flagged_when_it_departs_from_rts():
     log = load_kitti()
     fixes = subset(log.gnss, ~withheld(log.gnss_time))
     nav = solve_graph_inputs(InsInputs(time=log.time, gyro=log.gyro, accel=log.accel, gnss=fixes), ProcessingConfig())
+    v = nav.valid
+    score = score_outages(log, nav.time[v], np.degrees(nav.lat[v]), np.degrees(nav.lon[v]), nav.height[v],
+                          np.sqrt(nav.pos_var_n[v, 0]), np.sqrt(nav.pos_var_n[v, 1]), 0)
+    assert score.withheld > 100
+    assert nav.diagnostics.ground_vehicle and nav.info["graph_nhc_factors"] >= 0.95 * nav.info["keyframes"]
+    assert score.fused_rms_m <= 1.0, score
     verdict = assess(nav)
     assert "graph vs rts" in [c.name for c in verdict.failures]
+
+
+def test_nhc_factor_matches_the_constraint_it_linearises():
+    """The linearised non-holonomic factor against the exact residual ``(R^T v)_y,z / sigma`` evaluated directly
+    (numpy, no GTSAM) at a small perturbation ``R Exp(xi)``, ``v + dv``: agreement to second order."""
+    import gtsam
+    from gtsam.symbol_shorthand import V, X
+
+    from georef.frames import euler_to_dcm
+    from georef.frames.rotations import quat_to_dcm, rotvec_to_quat
+    from georef.fusion.graph import _nhc_factor
+
+    rng = np.random.default_rng(3)
+    R = euler_to_dcm(0.05, -0.03, 2.0)
+    v = np.array([-9.0, 4.0, 0.3])
+    sigma = np.array([0.05, 0.08])
+    factor = _nhc_factor(gtsam, X(0), V(0), gtsam.Pose3(gtsam.Rot3(R), np.zeros(3)), v, sigma)
+    for _ in range(5):
+        xi, dv = rng.normal(0.0, 1e-3, 3), rng.normal(0.0, 0.01, 3)
+        R1 = R @ quat_to_dcm(rotvec_to_quat(xi))
+        at = gtsam.Values()
+        at.insert(X(0), gtsam.Pose3(gtsam.Rot3(R1), rng.normal(0.0, 5.0, 3)))  # translation plays no part
+        at.insert(V(0), v + dv)
+        exact = 0.5 * np.sum(((R1.T @ (v + dv))[1:] / sigma) ** 2)
+        assert factor.error(at) == pytest.approx(exact, rel=1e-3, abs=1e-6)
 
 
 def test_fuse_accepts_the_graph(tmp_path):
@@ -165,9 +199,10 @@ def test_graph_estimates_the_lever_arm_it_is_not_told(flight_dir, flight_default
 
 
 def test_graph_attitude_departing_from_rts_fails_qc(tmp_path):
-    """A simulated car: the graph's horizontal positions agree with rts, but its pitch lay inside its own 2 sigma
-    for 0 % of the frames (yaw 0.76 deg against rts's 0.04). The check compares attitudes too and fails the run;
-    the same check passes the bundled flight (largest attitude separation about 1 sigma)."""
+    """A simulated car (seed 2): the graph's horizontal positions agree with rts, but its attitudes do not (with
+    the ground-vehicle factors: pitch RMS 0.20 deg against rts's 0.10, a median 4.8 of the graph's sigma apart;
+    without them yaw 0.76 deg against 0.04). The check compares attitudes too and fails the run; the same check
+    passes the bundled flight (largest attitude separation about 1 sigma)."""
     from georef.qc import assess_result
 
     flight = simulate(SimConfig.for_vehicle("car", 180.0, seed=2))
