@@ -116,7 +116,7 @@ def kitti(with_gtsam: bool) -> None:
 
 def graph_kitti(log, kept, rts_rms: float) -> None:
     """``--method graph`` on the same KITTI protocol, beside the rts figure: horizontal RMS at the withheld fixes,
-    claimed sigma, GNSS fixes the Cauchy kernel down-weights (weight under 0.5, i.e. beyond k sigma), ground-vehicle
+    claimed sigma, GNSS fixes the robust pass rejected, the time offset and lever arm estimated, ground-vehicle
     factors, QC verdict of ``graph vs rts``, runtime (rts included, which the graph runs first)."""
     from georef.config import ProcessingConfig
     from georef.datasets.kitti import score_outages
@@ -134,7 +134,9 @@ def graph_kitti(log, kept, rts_rms: float) -> None:
     check = next(c for c in assess(nav).checks if c.name == "graph vs rts")
     print(f"  graph: horizontal RMS {score.fused_rms_m:.2f} m (rts {rts_rms:.2f} m); "
           f"claimed {score.claimed_rms_m:.2f} m; "
-          f"{info['graph_fixes_downweighted']} of {info['graph_fixes']} fixes down-weighted (Cauchy weight < 0.5); "
+          f"{info['graph_rejected_fixes']} of {info['graph_fixes']} fixes rejected by the robust pass; "
+          f"time offset {info['graph_time_offset_s'] * 1e3:.1f} +- {info['graph_time_offset_sigma_s'] * 1e3:.1f} ms, "
+          f"lever arm {np.round(info['graph_lever_arm_m'], 2)} +- {np.round(info['graph_lever_arm_sigma_m'], 2)} m; "
           f"{info['graph_nhc_factors']} non-holonomic factors at {info['keyframes']} keyframes; {seconds:.1f} s")
     print(f"  graph vs rts: {check.status}: {check.message}")
 

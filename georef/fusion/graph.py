@@ -116,9 +116,12 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
         values.insert(B(k), gtsam.imuBias.ConstantBias(accel_bias[row], gyro_bias[row]))
     first = key_rows[0]
     prior_mean, prior_cov = calibration_prior(cfg)
-    # loose priors at the first keyframe: the RTS's position there rests on the given lever arm, so its prior
-    # also allows for the lever arm's own prior uncertainty (else an untold lever arm is pulled towards zero)
-    pos_sigma = np.hypot(np.sqrt(rts.pos_var_n[first]) * 3.0, np.sqrt(np.trace(prior_cov[:3, :3])))
+    # loose priors at the first keyframe: the RTS's position there rests on the configured lever arm, so its prior
+    # also allows for the lever-arm prior's uncertainty and its distance from the configured one (else an untold
+    # lever arm is pulled towards zero: 10 sigma in z on a PPK flight, 12 sigma under a campaign's prior)
+    lever_doubt = np.hypot(np.sqrt(np.trace(prior_cov[:3, :3])),
+                           np.linalg.norm(prior_mean[:3] - np.asarray(cfg.lever_arm_gnss)))
+    pos_sigma = np.hypot(np.sqrt(rts.pos_var_n[first]) * 3.0, lever_doubt)
     factors_at[0] = [
         gtsam.PriorFactorPose3(X(0), values.atPose3(X(0)), gtsam.noiseModel.Diagonal.Sigmas(
             np.concatenate([np.full(3, np.radians(1.0)), pos_sigma]))),
