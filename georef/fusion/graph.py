@@ -43,6 +43,7 @@ from georef.frames.rotations import (
     rotvec_to_quat,
     wrap_pi,
 )
+from georef.fusion.increments import compensated_rates
 from georef.fusion.ins import InsInputs, inputs_from_pos, solve_ins, unit_drift_psd
 from georef.fusion.solution import NavSolution
 
@@ -125,12 +126,14 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
     g_t = C_n_t_rows[:, :, 2] * normal_gravity(rts.lat, rts.height)[:, None]
     g_fix = np.einsum("nji,nj->ni", C_b_t, g_t - np.array([0.0, 0.0, float(normal_gravity(lat0, h0))]))
     accel = inputs.accel + np.where(np.isfinite(g_fix), g_fix, 0.0)
+    # per-interval rates with the strapdown's rotation, sculling and coning corrections: GTSAM holds the attitude
+    # at the start of each step (georef.fusion.increments; without them the graph lost 3-7 % to rts)
+    accel_step, gyro_step = compensated_rates(t, gyro, accel, gyro_bias, accel_bias)
     for k in range(1, len(key_rows)):
         a, b = key_rows[k - 1], key_rows[k]
         pim = gtsam.PreintegratedCombinedMeasurements(params, values.atConstantBias(B(k - 1)))
         for r in range(a, b):
-            dt = t[r + 1] - t[r]
-            pim.integrateMeasurement(0.5 * (accel[r] + accel[r + 1]), 0.5 * (gyro[r] + gyro[r + 1]), dt)
+            pim.integrateMeasurement(accel_step[r], gyro_step[r], t[r + 1] - t[r])
         factors_at.setdefault(k, []).append(gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k),
                                                                     pim))
     # GNSS antenna fixes, moved to the keyframe row's time along the velocity, with the sigmas the EKF + RTS
@@ -148,6 +151,7 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
     robust = (gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(CAUCHY_K), base)
               if cfg.graph_robust else base)
     fix_of_key = {}
+    gnss_factors: list[tuple] = []  # (factor in the graph, its Gaussian twin) per fix
     for index in use:
         row = int(np.searchsorted(t, gnss.time[index], side="left"))
         k = int(np.searchsorted(key_rows, row))
@@ -157,6 +161,7 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
         r_ant = geodetic_to_ecef(np.radians(gnss.lat_deg[index]), np.radians(gnss.lon_deg[index]), gnss.height[index])
         z = to_plane(r_ant) + v_t[row] * (t[row] - gnss.time[index])
         factors_at.setdefault(k, []).append(gtsam.GPSFactorArmCalib(X(k), lever_key, z, robust))
+        gnss_factors.append((factors_at[k][-1], gtsam.GPSFactorArmCalib(X(k), lever_key, z, base)))
     aiding = bool(cfg.unit_aiding and inputs.unit_rpy is not None)
     if aiding:
         _add_unit_attitude(gtsam, U, X, inputs.unit_rpy, rts, t, key_rows, C_n_t_rows, cfg, values, factors_at)
@@ -183,6 +188,11 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
         result = isam.calculateEstimate()
     else:
         result = gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams()).optimize()
+    rejected = 0
+    if cfg.graph_robust:
+        graph, result, rejected = _refit_on_inliers(
+            gtsam, [f for k in range(len(key_rows)) for f in factors_at.get(k, [])], gnss_factors, result,
+            cfg.gate_chi2)
     marginals = gtsam.Marginals(graph, result)
 
     # graph minus RTS at the keyframes, interpolated to every row
@@ -234,10 +244,40 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
                  "graph_lever_arm_prior_sigma_m": lever_prior,
                  "graph_rts_separation_sigma": separation,
                  "graph_rts_attitude_separation_sigma": attitude_separation, "keyframes": n_keys,
+                 "graph_rejected_fixes": rejected,
                  "graph_error_initial": graph.error(values), "graph_error_final": graph.error(result)})
     return NavSolution(method="graph", time=t, r_e=r_e, v_e=v_e, lat=lat, lon=lon, height=height, roll=roll,
                        pitch=pitch, yaw=yaw, pos_var_n=pos_var_rows, att_sigma=att_sigma, valid=valid, gnss=rts.gnss,
                        info=info, att_cov_n=att_cov_rows, diagnostics=rts.diagnostics)
+
+
+def _refit_on_inliers(gtsam, factors: list, gnss_factors: list[tuple], result, threshold: float):
+    """After the robust (Cauchy) solve, drop the fixes whose whitened residual at ``result`` exceeds
+    ``threshold`` (the squared Mahalanobis distance of the 3-D antenna residual, with the fix's own sigmas) and
+    solve again with a plain Gaussian model on the others, starting from ``result``.
+
+    Why: the Cauchy kernel weights every fix by ``1 / (1 + r^2 / k^2)``, good ones too (about 15 % less
+    information in the posterior sigmas at k = 4 sigma), so the robust solution is less accurate than the
+    Gaussian one on the same inliers. The threshold is the EKF's gate ``cfg.gate_chi2`` (default 16.27, chi-square
+    with 3 degrees of freedom at 99.9 %): a smoothed residual's covariance is smaller than the fix's own, so an
+    inlier passes with at least that probability and the graph rejects no more good fixes than the filter does.
+    ``factors`` are all the graph's factors, ``gnss_factors`` pairs of (robust GNSS factor among them, its
+    Gaussian twin). Returns the new graph (the robust GNSS factors replaced by the inliers' Gaussian twins), its
+    solution and the number of fixes dropped."""
+    robust = {id(factor) for factor, _ in gnss_factors}
+    inliers = []
+    for _, plain in gnss_factors:
+        e = plain.whitenedError(result)
+        if float(e @ e) <= threshold:
+            inliers.append(plain)
+    refit = gtsam.NonlinearFactorGraph()
+    for factor in factors:
+        if id(factor) not in robust:
+            refit.add(factor)
+    for factor in inliers:
+        refit.add(factor)
+    solution = gtsam.LevenbergMarquardtOptimizer(refit, result, gtsam.LevenbergMarquardtParams()).optimize()
+    return refit, solution, len(gnss_factors) - len(inliers)
 
 
 LEVER_ARM_GIVEN_SIGMA = 0.05  # m, a lever arm taped on the installation
