@@ -48,7 +48,7 @@ def draw_case(rng: np.random.Generator, index: int) -> dict:
         outages.append((start, length))
     outliers = [(float(np.round(rng.uniform(0.0, duration), 1)), float(np.round(rng.uniform(3.0, 60.0), 1)))
                 for _ in range(rng.integers(0, 4))]
-    return {"index": index, "seed": int(rng.integers(1, 1_000_000)), "rate": float(rng.choice([50, 100, 125, 200])),
+    return {"index": index, "seed": int(rng.integers(1, 1_000_000)), "rate": float(rng.integers(50, 201)),
             "imu": str(rng.choice(IMUS)), "vehicle": str(rng.choice(VEHICLES)), "duration": duration,
             "outages": outages, "outliers": outliers, "command": "fuse" if rng.random() < 1 / 3 else "process"}
 

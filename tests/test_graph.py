@@ -44,25 +44,25 @@ def test_robust_kernel_resists_outliers(tmp_path):
     plain = accuracy(frame_errors(results["plain"].table, flight.truth_frames))
     rts = accuracy(frame_errors(results["rts"].table, flight.truth_frames))
     assert robust["horizontal_rms_m"] < plain["horizontal_rms_m"]
-    assert robust["horizontal_rms_m"] <= rts["horizontal_rms_m"]  # this flight; see the xfail below
+    assert robust["horizontal_rms_m"] <= RTS_MARGIN * rts["horizontal_rms_m"]
+    # the three outliers are dropped before the Gaussian refit, and no good fix with them
+    assert results["robust"].nav.info["graph_rejected_fixes"] == len(OUTLIERS)
 
 
-SHORTFALL = pytest.mark.xfail(strict=True, reason=(
-    "known shortfall: with the unit's attitude fused (Gauss-Markov level errors, yaw origin and drift) the robust "
-    "graph beats RTS-with-gating on seed 2 (0.240 vs 0.265 m) but not on 1 (0.276 vs 0.260 m), 3 (0.295 vs 0.277 m; "
-    "it did before the RTS's noise model was fitted to the data) and 4 (0.308 vs 0.271 m); the two smoothers carry "
-    "the same information but their estimates differ by a few centimetres, and the Cauchy kernel down-weights good "
-    "fixes (docs/method-graph.md)"))
+#: issue 13: "on the foundation's simulated flights the graph's horizontal RMS is no worse than rts + 5 %"
+RTS_MARGIN = 1.05
 
 
-@pytest.mark.parametrize("seed", [pytest.param(1, marks=SHORTFALL), 2, pytest.param(3, marks=SHORTFALL),
-                                  pytest.param(4, marks=SHORTFALL)])
-def test_graph_at_least_as_accurate_as_rts_with_outliers(tmp_path, seed):
-    sim = SimConfig(seed=seed, gnss=GnssModel(outliers=OUTLIERS))
+@pytest.mark.parametrize("outliers", [OUTLIERS, []], ids=["outliers", "clean"])
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
+def test_graph_at_least_as_accurate_as_rts(tmp_path, seed, outliers):
+    """Measured (horizontal RMS at the frames, rts / graph [m], with outliers then clean): seed 1 0.260/0.265,
+    0.255/0.261; 2 0.265/0.266, 0.258/0.258; 3 0.277/0.267, 0.282/0.271; 4 0.271/0.284, 0.271/0.284."""
+    sim = SimConfig(seed=seed, gnss=GnssModel(outliers=outliers))
     flight, results = _run(tmp_path, sim, graph={"method": "graph"}, rts={"method": "rts"})
     graph = accuracy(frame_errors(results["graph"].table, flight.truth_frames))
     rts = accuracy(frame_errors(results["rts"].table, flight.truth_frames))
-    assert graph["horizontal_rms_m"] <= rts["horizontal_rms_m"]
+    assert graph["horizontal_rms_m"] <= RTS_MARGIN * rts["horizontal_rms_m"]
 
 
 def test_isam2_matches_batch(tmp_path):
@@ -178,3 +178,63 @@ def test_graph_attitude_departing_from_rts_fails_qc(tmp_path):
     result = process(paths["POS.txt"], paths["Kamera.txt"], processing_config_for(flight).updated(method="graph"))
     check = [c for c in assess_result(result).checks if c.name == "graph vs rts"][0]
     assert check.status == "fail" and "attitudes" in check.message
+
+
+@pytest.mark.parametrize("command", [
+    # 21.6 s car, tactical FOG, 100 Hz, outliers: GTSAM's Cholesky marginals failed ("indeterminate system", exit 3)
+    # on a positive-definite Hessian of condition 6e11; the marginals now come from a QR elimination
+    ["simulate", "--vehicle", "car", "--duration", "21.6", "--rate", "100", "--seed", "226215", "--imu",
+     "tactical-fog", "--outlier", "11.1,56", "--outlier", "1.4,51", "--outlier", "1.4,22.6"],
+    # 56.1 s multicopter, 125 Hz, a 25-s outage and outliers, through georef fuse: the same failure
+    ["simulate", "--vehicle", "multicopter", "--duration", "56.1", "--rate", "125", "--seed", "315983", "--imu",
+     "mems-consumer", "--outage", "20,24.8", "--outlier", "37.9,34.8", "--outlier", "21.7,38.6", "--generic"],
+])
+def test_graph_marginals_survive_ill_conditioned_graphs(tmp_path, command):
+    """Two crashes found by benchmarks/graph_property_sweep.py: both now write their outputs (exit 0 or 4)."""
+    from georef_cli.main import app
+    from typer.testing import CliRunner
+
+    runner = CliRunner()
+    folder = tmp_path / "flight"
+    assert runner.invoke(app, [command[0], str(folder), *command[1:], "-q"]).exit_code == 0
+    if "--generic" in command:
+        args = ["fuse", "--imu", str(folder / "imu.csv"), "--gnss", str(folder / "gnss.csv"), "-o",
+                str(tmp_path / "out.csv")]
+    else:
+        args = ["process", str(folder / "POS.txt"), str(folder / "Kamera.txt"), "--config",
+                str(folder / "flight.toml"), "-o", str(tmp_path / "out.csv")]
+    result = runner.invoke(app, [*args, "--method", "graph", "-q"])
+    assert "internal error" not in result.output
+    assert result.exit_code in (0, 4), result.output
+    assert (tmp_path / "out.csv").exists()
+
+
+def test_qr_marginals_equal_gtsams_cholesky_marginals(tmp_path):
+    """The QR marginals against ``gtsam.Marginals`` (Cholesky) on a well-conditioned 60-s flight's graph."""
+    import gtsam
+
+    from georef.fusion import graph as graph_module
+    from georef.fusion.graph import solve_graph
+    from georef.io.pos import read_pos
+
+    flight = simulate(SimConfig.for_vehicle("helicopter", 60.0, seed=2))
+    paths = write_flight(flight, tmp_path)
+    captured = {}
+    qr = graph_module._QrMarginals
+
+    def capture(gtsam_module, graph, result):
+        captured.update(graph=graph, result=result)
+        return qr(gtsam_module, graph, result)
+
+    graph_module._QrMarginals = capture
+    try:
+        solve_graph(read_pos(paths["POS.txt"]), processing_config_for(flight))
+    finally:
+        graph_module._QrMarginals = qr
+    ours = qr(gtsam, captured["graph"], captured["result"])
+    theirs = gtsam.Marginals(captured["graph"], captured["result"])
+    for key in (gtsam.symbol("x", 0), gtsam.symbol("x", 30), gtsam.symbol("v", 10), gtsam.symbol("b", 20),
+                gtsam.symbol("l", 0)):
+        a, b = ours.marginalCovariance(key), theirs.marginalCovariance(key)
+        scale = np.sqrt(np.outer(np.diag(b), np.diag(b)))
+        assert np.max(np.abs(a - b) / scale) < 1e-3, key
