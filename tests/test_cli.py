@@ -534,7 +534,8 @@ def test_batch_with_an_internal_error_exits_3(sim_flight, tmp_path, monkeypatch)
     def buggy(*args, **kwargs):
         raise ZeroDivisionError("a planted bug")
 
-    def sequential(jobs, output_root, method=None, scheduler=None, workers=2, on_done=None, exports=(), shared_calibration=False):
+    def sequential(jobs, output_root, method=None, scheduler=None, workers=2, on_done=None, exports=(),
+                   shared_calibration=False):
         rows = []
         for job in jobs:
             rows.append(georef.batch.process_flight(job, str(output_root), method, exports))

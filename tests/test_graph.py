@@ -44,22 +44,30 @@ def test_robust_kernel_resists_outliers(tmp_path):
     plain = accuracy(frame_errors(results["plain"].table, flight.truth_frames))
     rts = accuracy(frame_errors(results["rts"].table, flight.truth_frames))
     assert robust["horizontal_rms_m"] < plain["horizontal_rms_m"]
-    assert robust["horizontal_rms_m"] <= 1.05 * rts["horizontal_rms_m"]  # the issue's target
+    assert robust["horizontal_rms_m"] <= RTS_MARGIN * rts["horizontal_rms_m"]
+    # the three outliers are dropped before the Gaussian refit, and no good fix with them
+    assert results["robust"].nav.info["graph_rejected_fixes"] == len(OUTLIERS)
 
 
-SHORTFALL = pytest.mark.xfail(strict=True, reason=(
-    "known shortfall: the graph's horizontal RMS against the RTS's with these outliers is 1.040 (seed 1), 1.002 (2), "
-    "0.973 (3) and 1.058 (4; 0.2869 vs 0.2712 m, the same 1.059 on the clean flight): seed 4 misses rts + 5 %"))
+#: issue 13: "on the foundation's simulated flights the graph's horizontal RMS is no worse than rts + 5 %"
+RTS_MARGIN = 1.05
 
 
-@pytest.mark.parametrize("seed", [1, 2, 3, pytest.param(4, marks=SHORTFALL)])
-def test_graph_at_least_as_accurate_as_rts_with_outliers(tmp_path, seed):
-    """The issue's target: with outliers, the graph's horizontal RMS is at most the RTS's + 5 %."""
-    sim = SimConfig(seed=seed, gnss=GnssModel(outliers=OUTLIERS))
+SEED_4 = pytest.mark.xfail(strict=True, reason=(
+    "known shortfall: seed 4's graph is 0.2873 against rts 0.2713 m (1.059) clean and 1.059 with the outliers: the "
+    "graph estimates the lever arm (prior 5 cm) and the GNSS time offset (prior 2 ms), which rts holds at the "
+    "configured values; with the offset held it is 0.2840 (1.047), with both held 0.2767 (1.020)"))
+
+
+@pytest.mark.parametrize("outliers", [OUTLIERS, []], ids=["outliers", "clean"])
+@pytest.mark.parametrize("seed", [1, 2, 3, pytest.param(4, marks=SEED_4)])
+def test_graph_at_least_as_accurate_as_rts(tmp_path, seed, outliers):
+    """Horizontal RMS at the frames within rts + 5 % (seeds 1-3 measured at 0.97-1.04; seed 4 below)."""
+    sim = SimConfig(seed=seed, gnss=GnssModel(outliers=outliers))
     flight, results = _run(tmp_path, sim, graph={"method": "graph"}, rts={"method": "rts"})
     graph = accuracy(frame_errors(results["graph"].table, flight.truth_frames))
     rts = accuracy(frame_errors(results["rts"].table, flight.truth_frames))
-    assert graph["horizontal_rms_m"] <= 1.05 * rts["horizontal_rms_m"]
+    assert graph["horizontal_rms_m"] <= RTS_MARGIN * rts["horizontal_rms_m"]
 
 
 def test_isam2_matches_batch(tmp_path):
@@ -210,3 +218,97 @@ def test_graph_attitude_departing_from_rts_fails_qc(tmp_path):
     result = process(paths["POS.txt"], paths["Kamera.txt"], processing_config_for(flight).updated(method="graph"))
     check = [c for c in assess_result(result).checks if c.name == "graph vs rts"][0]
     assert check.status == "fail" and "attitudes" in check.message
+
+
+@pytest.mark.parametrize("command", [
+    # 21.6 s car, tactical FOG, 100 Hz, outliers: GTSAM's Cholesky marginals failed ("indeterminate system", exit 3)
+    # on a positive-definite Hessian of condition 6e11; the marginals now come from a QR elimination
+    ["simulate", "--vehicle", "car", "--duration", "21.6", "--rate", "100", "--seed", "226215", "--imu",
+     "tactical-fog", "--outlier", "11.1,56", "--outlier", "1.4,51", "--outlier", "1.4,22.6"],
+    # 56.1 s multicopter, 125 Hz, a 25-s outage and outliers, through georef fuse: the same failure
+    ["simulate", "--vehicle", "multicopter", "--duration", "56.1", "--rate", "125", "--seed", "315983", "--imu",
+     "mems-consumer", "--outage", "20,24.8", "--outlier", "37.9,34.8", "--outlier", "21.7,38.6", "--generic"],
+])
+def test_graph_marginals_survive_ill_conditioned_graphs(tmp_path, command):
+    """Two crashes found by benchmarks/graph_property_sweep.py: both now write their outputs (exit 0 or 4)."""
+    from georef_cli.main import app
+    from typer.testing import CliRunner
+
+    runner = CliRunner()
+    folder = tmp_path / "flight"
+    assert runner.invoke(app, [command[0], str(folder), *command[1:], "-q"]).exit_code == 0
+    if "--generic" in command:
+        args = ["fuse", "--imu", str(folder / "imu.csv"), "--gnss", str(folder / "gnss.csv"), "-o",
+                str(tmp_path / "out.csv")]
+    else:
+        args = ["process", str(folder / "POS.txt"), str(folder / "Kamera.txt"), "--config",
+                str(folder / "flight.toml"), "-o", str(tmp_path / "out.csv")]
+    result = runner.invoke(app, [*args, "--method", "graph", "-q"])
+    assert "internal error" not in result.output
+    assert result.exit_code in (0, 4), result.output
+    assert (tmp_path / "out.csv").exists()
+
+
+def test_qr_marginals_equal_gtsams_cholesky_marginals(tmp_path):
+    """The QR marginals against ``gtsam.Marginals`` (Cholesky) on a well-conditioned 60-s flight's graph."""
+    import gtsam
+
+    from georef.fusion import graph as graph_module
+    from georef.fusion.graph import solve_graph
+    from georef.io.pos import read_pos
+
+    flight = simulate(SimConfig.for_vehicle("helicopter", 60.0, seed=2))
+    paths = write_flight(flight, tmp_path)
+    captured = {}
+    qr = graph_module._QrMarginals
+
+    def capture(gtsam_module, graph, result):
+        captured.update(graph=graph, result=result)
+        return qr(gtsam_module, graph, result)
+
+    graph_module._QrMarginals = capture
+    try:
+        solve_graph(read_pos(paths["POS.txt"]), processing_config_for(flight))
+    finally:
+        graph_module._QrMarginals = qr
+    ours = qr(gtsam, captured["graph"], captured["result"])
+    theirs = gtsam.Marginals(captured["graph"], captured["result"])
+    for key in (gtsam.symbol("x", 0), gtsam.symbol("x", 30), gtsam.symbol("v", 10), gtsam.symbol("b", 20),
+                gtsam.symbol("c", 0)):
+        a, b = ours.marginalCovariance(key), theirs.marginalCovariance(key)
+        scale = np.sqrt(np.outer(np.diag(b), np.diag(b)))
+        assert np.max(np.abs(a - b) / scale) < 1e-3, key
+
+
+def test_compensated_rates_make_gtsams_preintegration_exact_for_a_constant_rotation():
+    """A body turning at a constant 0.5 rad/s about x, with a constant specific force: the exact velocity change
+    over 1 s in the starting frame is ``∫ Exp(ω t) f dt`` (Rodrigues, integrated in closed form). GTSAM's
+    preintegration of the plain trapezoid rates misses it by ``½ ω × f dt`` per unit time (0.05 m/s here, 50
+    Hz); of :func:`georef.fusion.increments.compensated_rates` only by the next term the strapdown leaves out
+    too, ``⅙ |ω|² |f| dt`` per unit time (measured 1.6e-4 m/s)."""
+    import gtsam
+
+    from georef.fusion.increments import compensated_rates
+
+    rate, span = 50.0, 1.0
+    t = np.arange(0.0, span + 0.5 / rate, 1.0 / rate)
+    omega = np.array([0.5, 0.0, 0.0])
+    force = np.array([0.3, 1.0, -9.8])
+    gyro, accel = np.tile(omega, (len(t), 1)), np.tile(force, (len(t), 1))
+    w = np.linalg.norm(omega)
+    K = np.array([[0.0, -omega[2], omega[1]], [omega[2], 0.0, -omega[0]], [-omega[1], omega[0], 0.0]]) / w
+    exact = (span * np.eye(3) + (1.0 - np.cos(w * span)) / w * K + (span - np.sin(w * span) / w) * K @ K) @ force
+
+    def preintegrated(a_steps, w_steps):
+        pim = gtsam.PreintegratedImuMeasurements(gtsam.PreintegrationParams.MakeSharedD(0.0),
+                                                 gtsam.imuBias.ConstantBias())
+        for k in range(len(t) - 1):
+            pim.integrateMeasurement(a_steps[k], w_steps[k], t[k + 1] - t[k])
+        return pim.deltaVij()
+
+    zero = np.zeros_like(gyro)
+    plain = preintegrated(0.5 * (accel[:-1] + accel[1:]), 0.5 * (gyro[:-1] + gyro[1:]))
+    compensated = preintegrated(*compensated_rates(t, gyro, accel, zero, zero))
+    assert np.linalg.norm(plain - exact) > 0.04
+    third_order = w**2 * np.linalg.norm(force) * span / rate / 6.0  # 1.64e-4 m/s
+    assert np.linalg.norm(compensated - exact) < 1.1 * third_order
