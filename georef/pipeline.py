@@ -140,7 +140,9 @@ def solution_figures(nav: NavSolution, cfg: ProcessingConfig) -> dict[str, objec
       [m/s/sqrt(h)], ``arw_deg_sqrt_h`` the angle random walk about north/east [deg/sqrt(h)];
     * ``ground_vehicle``: non-holonomic constraints applied;
     * ``graph_lever_arm_m``, ``graph_lever_arm_sigma_m`` (``--method graph`` only): the GNSS lever arm [m, body x
-      forward, y right, z down] estimated with the trajectory, and its marginal 1-sigma.
+      forward, y right, z down] estimated with the trajectory, and its marginal 1-sigma; ``graph_time_offset_s``,
+      ``graph_time_offset_sigma_s`` the GNSS time offset [s] (each fix measured that long before its tag) and its
+      1-sigma; ``graph_rejected_fixes`` the fixes the robust pass dropped.
     """
     diagnostics = nav.diagnostics
     if diagnostics is None:
@@ -171,6 +173,9 @@ def solution_figures(nav: NavSolution, cfg: ProcessingConfig) -> dict[str, objec
     if "graph_lever_arm_m" in nav.info:  # --method graph: the lever arm estimated with the trajectory
         figures["graph_lever_arm_m"] = tuple(float(v) for v in nav.info["graph_lever_arm_m"])
         figures["graph_lever_arm_sigma_m"] = tuple(float(v) for v in nav.info["graph_lever_arm_sigma_m"])
+        figures["graph_time_offset_s"] = float(nav.info["graph_time_offset_s"])
+        figures["graph_time_offset_sigma_s"] = float(nav.info["graph_time_offset_sigma_s"])
+        figures["graph_rejected_fixes"] = int(nav.info["graph_rejected_fixes"])
     return figures
 
 

@@ -652,6 +652,15 @@ def _provenance(result, inputs: dict[str, Path | str] | None, command: str | Non
         mounting.append(("GNSS lever arm the data show", ", ".join(
             f"{a} {_number(float(v))} ± {_number(float(s))}" for a, v, s in
             zip("xyz", calibration.lever_arm, calibration.lever_arm_sigma, strict=True)) + " m (not applied)"))
+    info = result.nav.info
+    if "graph_lever_arm_m" in info:  # --method graph: the calibration estimated with the trajectory (applied)
+        mounting.append(("GNSS lever arm the graph estimated", ", ".join(
+            f"{a} {_number(float(v))} ± {_number(float(s))}" for a, v, s in
+            zip("xyz", info["graph_lever_arm_m"], info["graph_lever_arm_sigma_m"], strict=True))
+            + " m (applied: the trajectory was solved with it)"))
+        mounting.append(("GNSS time offset the graph estimated",
+                         f"{_number(1e3 * float(info['graph_time_offset_s']))} ± "
+                         f"{_number(1e3 * float(info['graph_time_offset_sigma_s']))} ms (applied)"))
     mounting += [
         ("camera lever arm (IMU → perspective centre)", _triple(cfg.lever_arm_camera, ("x", "y", "z"), "m (body)")),
         ("boresight", _triple(cfg.boresight, ("roll", "pitch", "yaw"), "deg (C_c_b = Rz(yaw) Ry(pitch) Rx(roll))")),
