@@ -144,8 +144,12 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
         a, b = key_rows[k - 1], key_rows[k]
         # the EKF's process-noise factors over this interval (IMU gaps, GNSS outages), averaged over its rows: the
         # preintegrated rotation and velocity variances (integrals of the noise density) are then the EKF's
-        scale = np.average(q_scale[a + 1:b + 1], axis=0, weights=np.diff(t[a:b + 1]))
-        step = params if np.all(scale == 1.0) else _preintegration_params(gtsam, noise, gravity, omega, *scale)
+        segment = q_scale[a + 1:b + 1]
+        if np.all(segment == 1.0):
+            step = params
+        else:
+            scale = np.average(segment, axis=0, weights=np.diff(t[a:b + 1]))
+            step = _preintegration_params(gtsam, noise, gravity, omega, *scale)
         pim = gtsam.PreintegratedCombinedMeasurements(step, values.atConstantBias(B(k - 1)))
         for r in range(a, b):
             pim.integrateMeasurement(accel_step[r], gyro_step[r], t[r + 1] - t[r])
@@ -197,20 +201,21 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig) -> NavSolution:
     n_keys = len(key_rows)
     d_pos = np.empty((n_keys, 3))
     d_vel = np.empty((n_keys, 3))
-    d_rot = np.empty((n_keys, 3))
     pos_var = np.empty((n_keys, 3))
     att_cov = np.empty((n_keys, 3, 3))
+    R_keys = np.empty((n_keys, 3, 3))
     for k, row in enumerate(key_rows):
         pose = result.atPose3(X(k))
         R = pose.rotation().matrix()
         d_pos[k] = pose.translation() - p_t[row]
         d_vel[k] = result.atVector(V(k)) - v_t[row]
-        d_rot[k] = quat_to_rotvec(dcm_to_quat(R @ C_b_t[row].T))  # plane-frame rotation
+        R_keys[k] = R
         cov = marginals.marginalCovariance(X(k))
         C_t_n = C_n_t_rows[row].T
         pos_cov_n = C_t_n @ R @ cov[3:, 3:] @ R.T @ C_t_n.T
         pos_var[k] = np.diag(pos_cov_n)
         att_cov[k] = C_t_n @ R @ cov[:3, :3] @ R.T @ C_t_n.T
+    d_rot = quat_to_rotvec(dcm_to_quat(R_keys @ np.swapaxes(C_b_t[key_rows], -1, -2)))  # plane-frame rotations
     rows = np.arange(len(t))
     interp = lambda data: np.stack([np.interp(rows, key_rows, data[:, j]) for j in range(data.shape[1])], -1)  # noqa: E731
     p_new = p_t + interp(d_pos)
@@ -473,7 +478,7 @@ def _fill_gaps(t: np.ndarray, key_rows: np.ndarray, max_gap: float) -> np.ndarra
     return np.unique(np.concatenate([key_rows, *extra])) if extra else key_rows
 
 
-def _unit_factor(gtsam, key_x: int, key_u: int, z: np.ndarray, C_t_n: np.ndarray, pose, u: np.ndarray,
+def _unit_factor(gtsam, key_x: int, key_u: int, error: np.ndarray, H_rot: np.ndarray, pose, u: np.ndarray,
                  sigma: float):
     """The unit's roll, pitch, yaw [rad] at one keyframe: ``roll_u = roll + e_r``, ``pitch_u = pitch + e_p``,
     ``yaw_u = yaw - d``, with (roll, pitch, yaw) of ``C_b_n = C_t_n R`` and ``U = (e_r, e_p, d, d_dot)``,
@@ -484,13 +489,12 @@ def _unit_factor(gtsam, key_x: int, key_u: int, z: np.ndarray, C_t_n: np.ndarray
     Levenberg-Marquardt iteration about 30x slower). The initial values are the RTS solution, which the graph
     moves by hundredths of a degree, so the Jacobian's change (second order in that move) is negligible: on the
     15-minute benchmark flight the optimised graph error agrees with the CustomFactor's to 1e-8 relative.
-    A body rotation ``xi`` in ``R Exp(xi)`` is the NED rotation ``C xi``, and ``euler_error_jacobian = E C^T``.
+    A body rotation ``xi`` in ``R Exp(xi)`` is the NED rotation ``C xi``, and ``euler_error_jacobian = E C^T``:
+    ``error`` (3,) [rad] and ``H_rot = E C`` (3, 3) come vectorised over the keyframes from
+    :func:`_unit_linearisation`.
     """
-    C = C_t_n @ pose.rotation().matrix()
-    roll, pitch, yaw = dcm_to_euler(C)
-    e = np.array([roll + u[0] - z[0], pitch + u[1] - z[1], wrap_pi(yaw - u[2] - z[2])])
-    H_x = np.hstack([euler_error_jacobian(roll, pitch, yaw) @ C, np.zeros((3, 3))])
-    linear = gtsam.JacobianFactor(key_x, H_x / sigma, key_u, UNIT_H / sigma, -e / sigma,
+    H_x = np.hstack([H_rot, np.zeros((3, 3))])
+    linear = gtsam.JacobianFactor(key_x, H_x / sigma, key_u, UNIT_H / sigma, -error / sigma,
                                   gtsam.noiseModel.Unit.Create(3))
     at = gtsam.Values()
     at.insert(key_x, pose)
@@ -559,6 +563,16 @@ def _relinearise_ground_vehicle(gtsam, X, V, graph, result, sigma: dict[int, np.
     return gtsam.LevenbergMarquardtOptimizer(graph, result, gtsam.LevenbergMarquardtParams()).optimize()
 
 
+def _unit_linearisation(C_t_n: np.ndarray, R: np.ndarray, u: np.ndarray, z: np.ndarray):
+    """The unit-attitude factors' errors (K, 3) [rad] and rotation Jacobians ``E C`` (K, 3, 3) at K keyframes:
+    ``C = C_t_n R`` (plane-to-NED times the pose's rotation), ``u`` (K, 4) the unit variables, ``z`` (K, 3) the
+    unit's roll, pitch, yaw [rad] (see :func:`_unit_factor`)."""
+    C = C_t_n @ R
+    roll, pitch, yaw = dcm_to_euler(C)
+    errors = np.stack([roll + u[:, 0] - z[:, 0], pitch + u[:, 1] - z[:, 1], wrap_pi(yaw - u[:, 2] - z[:, 2])], -1)
+    return errors, euler_error_jacobian(roll, pitch, yaw) @ C
+
+
 DRIFT_PRIOR = np.radians(2.0) / 60.0  # rad/s, as the EKF without a recovered yaw offset
 UNIT_H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0]])
 
@@ -589,10 +603,13 @@ def _add_unit_attitude(gtsam, U, X, unit_rpy, rts, t, key_rows, C_n_t_rows, cfg,
         d_dot = 0.0
     for k in range(len(key_rows)):
         values.insert(U(k), np.array([e_level[k, 0], e_level[k, 1], d[k], d_dot]))
-    for k, row in enumerate(key_rows):
-        factors_at.setdefault(k, []).append(_unit_factor(gtsam, X(k), U(k), z[k], C_n_t_rows[row].T,
-                                                         values.atPose3(X(k)), values.atVector(U(k)),
-                                                         np.radians(cfg.unit_angle_noise)))
+    poses = [values.atPose3(X(k)) for k in range(len(key_rows))]
+    u_values = np.array([values.atVector(U(k)) for k in range(len(key_rows))])
+    errors, H_rot = _unit_linearisation(np.swapaxes(C_n_t_rows[key_rows], -1, -2),
+                                        np.array([pose.rotation().matrix() for pose in poses]), u_values, z)
+    for k in range(len(key_rows)):
+        factors_at.setdefault(k, []).append(_unit_factor(gtsam, X(k), U(k), errors[k], H_rot[k], poses[k],
+                                                         u_values[k], np.radians(cfg.unit_angle_noise)))
     # priors at the first keyframe: the level errors' stationary Gauss-Markov sigma; the yaw origin is free (pi,
     # only to keep the first incremental update determinate), its drift within the EKF's default 2 deg/min
     prior_sigma = np.array([level, level, np.pi, DRIFT_PRIOR])
