@@ -40,7 +40,7 @@ geoid:
 
 test: $(KERNELS) browser geoid
 	$(BIN)/ruff check georef cli tests benchmarks examples
-	$(BIN)/python -m pytest -q -n auto --dist worksteal
+	$(BIN)/python -m pytest -q -n auto --dist worksteal --durations=15
 
 bench: $(KERNELS)
 	$(BIN)/python benchmarks/bench_pipeline.py

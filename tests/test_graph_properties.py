@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 IMUS = ("mems-ivru", "mems-consumer", "consumer-phone", "tactical-fog")
 VEHICLES = ("helicopter", "multicopter", "car")
 MIN_FIXES = 10
-SETTINGS = settings(max_examples=10, deadline=None, derandomize=True, database=None,
+SETTINGS = settings(max_examples=6, deadline=None, derandomize=True, database=None,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 
 
@@ -86,7 +86,7 @@ def test_process_graph_never_exits_3(case):
         assert (folder / "eo.csv").exists()
 
 
-@settings(SETTINGS, max_examples=5)
+@settings(SETTINGS, max_examples=3)
 @given(case=flights())
 def test_fuse_graph_never_exits_3(case):
     from georef_cli.main import app
