@@ -93,6 +93,11 @@ class ProcessingConfig:
     graph_solver: str = "lm"
     #: factor graph: Cauchy robust kernel on the GNSS factors (False: plain Gaussian)
     graph_robust: bool = True
+    #: factor graph: 1-sigma prior [unitless; 0.002 = 2000 ppm] of the gyro and accelerometer scale-factor errors,
+    #: estimated with the trajectory where the motion makes them observable (a turn for the yaw gyro). 0 (default):
+    #: not estimated; on flights without scale-factor errors estimating them cost up to 4.5 % horizontal RMS
+    #: (docs/method-graph.md)
+    graph_scale_factor_sigma: float = 0.0
     #: [m] 1-sigma of the given GNSS lever arm as the graph's prior on its lever-arm variable, one number or one per
     #: body axis. None: 0.05 m (a taped installation) when a lever arm is given (non-zero), else estimated freely
     #: (10 m)
@@ -108,6 +113,9 @@ class ProcessingConfig:
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise ValueError(f"unknown method {self.method!r}; choose one of {', '.join(METHODS)}")
+        if not 0.0 <= self.graph_scale_factor_sigma <= 0.1:
+            raise ValueError("graph_scale_factor_sigma must be between 0 (not estimated) and 0.1 (10 %), got "
+                             f"{self.graph_scale_factor_sigma!r}")
         if self.graph_solver not in ("lm", "isam2"):
             raise ValueError(f"graph_solver must be 'lm' or 'isam2', got {self.graph_solver!r}")
         if self.vehicle not in ("auto", "ground", "air"):
@@ -157,7 +165,7 @@ _SECTIONS = {
     "axis": {"axis_accel_sigma", "axis_bias_sigma", "axis_bias_time"},
     "gnss_gate": {"gate_chi2"},
     "ins": {"imu_preset", "covariance_rate", "magnetic_declination", "vehicle"},
-    "graph": {"graph_solver", "graph_robust"},
+    "graph": {"graph_solver", "graph_robust", "graph_scale_factor_sigma"},
 }
 
 

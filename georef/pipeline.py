@@ -142,7 +142,10 @@ def solution_figures(nav: NavSolution, cfg: ProcessingConfig) -> dict[str, objec
     * ``graph_lever_arm_m``, ``graph_lever_arm_sigma_m`` (``--method graph`` only): the GNSS lever arm [m, body x
       forward, y right, z down] estimated with the trajectory, and its marginal 1-sigma; ``graph_time_offset_s``,
       ``graph_time_offset_sigma_s`` the GNSS time offset [s] (each fix measured that long before its tag) and its
-      1-sigma; ``graph_rejected_fixes`` the fixes the robust pass dropped.
+      1-sigma; ``graph_rejected_fixes`` the fixes the robust pass dropped; ``graph_gyro_scale_ppm``,
+      ``graph_accel_scale_ppm`` and their ``..._sigma_ppm`` the scale-factor errors [ppm, body x, y, z] estimated
+      with the trajectory (absent when ``graph_scale_factor_sigma`` is 0), ``graph_scale_prior_sigma_ppm`` their
+      prior's 1-sigma: an axis whose sigma stays near it was not observable in this flight's motion.
     """
     diagnostics = nav.diagnostics
     if diagnostics is None:
@@ -176,6 +179,12 @@ def solution_figures(nav: NavSolution, cfg: ProcessingConfig) -> dict[str, objec
         figures["graph_time_offset_s"] = float(nav.info["graph_time_offset_s"])
         figures["graph_time_offset_sigma_s"] = float(nav.info["graph_time_offset_sigma_s"])
         figures["graph_rejected_fixes"] = int(nav.info["graph_rejected_fixes"])
+    for key in ("graph_gyro_scale_ppm", "graph_gyro_scale_sigma_ppm", "graph_accel_scale_ppm",
+                "graph_accel_scale_sigma_ppm"):
+        if key in nav.info:
+            figures[key] = tuple(float(v) for v in nav.info[key])
+    if "graph_scale_prior_sigma_ppm" in nav.info:
+        figures["graph_scale_prior_sigma_ppm"] = float(nav.info["graph_scale_prior_sigma_ppm"])
     return figures
 
 

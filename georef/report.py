@@ -661,6 +661,13 @@ def _provenance(result, inputs: dict[str, Path | str] | None, command: str | Non
         mounting.append(("GNSS time offset the graph estimated",
                          f"{_number(1e3 * float(info['graph_time_offset_s']))} ± "
                          f"{_number(1e3 * float(info['graph_time_offset_sigma_s']))} ms (applied)"))
+    for sensor, name in (("gyro", "gyro"), ("accel", "accelerometer")):
+        if f"graph_{sensor}_scale_ppm" in info:
+            prior = float(info["graph_scale_prior_sigma_ppm"])
+            mounting.append((f"{name} scale factors the graph estimated", ", ".join(
+                f"{a} {v:.0f} ± {s:.0f}" + (" (not observed)" if s > 0.8 * prior else "") for a, v, s in
+                zip("xyz", info[f"graph_{sensor}_scale_ppm"], info[f"graph_{sensor}_scale_sigma_ppm"], strict=True))
+                + f" ppm (prior ± {prior:.0f} ppm; applied)"))
     mounting += [
         ("camera lever arm (IMU → perspective centre)", _triple(cfg.lever_arm_camera, ("x", "y", "z"), "m (body)")),
         ("boresight", _triple(cfg.boresight, ("roll", "pitch", "yaw"), "deg (C_c_b = Rz(yaw) Ry(pitch) Rx(roll))")),

@@ -312,3 +312,82 @@ def test_compensated_rates_make_gtsams_preintegration_exact_for_a_constant_rotat
     assert np.linalg.norm(plain - exact) > 0.04
     third_order = w**2 * np.linalg.norm(force) * span / rate / 6.0  # 1.64e-4 m/s
     assert np.linalg.norm(compensated - exact) < 1.1 * third_order
+
+
+def _ppk_flight(tmp_path, duration, **sim_changes):
+    """A helicopter survey with PPK-grade fixes (2/2/4 cm) and its configuration, read back from its files."""
+    from dataclasses import replace
+
+    from georef.io.pos import read_pos
+
+    sim = SimConfig(seed=1, gnss=GnssModel(sigma_neu_m=(0.02, 0.02, 0.04)), **sim_changes)
+    flight = simulate(replace(sim, plan=replace(sim.plan, duration_s=duration)))
+    paths = write_flight(flight, tmp_path)
+    return flight, read_pos(paths["POS.txt"]), processing_config_for(flight)
+
+
+def test_graph_fits_its_noise_with_the_lever_arm_the_data_show(tmp_path):
+    """Lever arm not told: the EKF + RTS, applying zero, fits a horizontal GNSS variance several times the fixes'
+    (6.4 on a 10-minute flight); the graph runs it again with the lever arm its robust pass found, so that the
+    noise model it takes matches the fixes, and the quality checks still compare the data with the user's (zero)
+    lever arm."""
+    from georef.fusion.graph import solve_graph
+    from georef.fusion.ins import inputs_from_pos, solve_ins
+
+    flight, log, cfg = _ppk_flight(tmp_path, 180.0)
+    untold = cfg.updated(lever_arm_gnss=(0.0, 0.0, 0.0))
+    rts = solve_ins(inputs_from_pos(log), untold, smooth=True)
+    first = rts.diagnostics.noise.r_scale_h
+    assert first > 3.0
+    graph = solve_graph(log, untold)
+    assert graph.diagnostics.noise.r_scale_h < 1.5
+    truth = np.asarray(flight.config.lever_arm_gnss_m)
+    assert np.all(np.abs(graph.info["graph_noise_refit_lever_arm_m"] - truth) < 0.15)
+    estimate, sigma = graph.info["graph_lever_arm_m"], graph.info["graph_lever_arm_sigma_m"]
+    assert np.all(np.abs(estimate - truth) < 3.0 * sigma), (estimate, sigma)
+    np.testing.assert_array_equal(graph.diagnostics.lever_arm_given, 0.0)
+
+
+def test_graph_estimates_the_yaw_gyro_scale_factor_in_turns(tmp_path):
+    """A yaw gyro reading 3000 ppm too much: the survey's turns make its scale factor observable (sigma well below
+    the 2000-ppm prior; estimate within 3 sigma), and the other five, all zero, are estimated as zero within
+    3 sigma: nothing invented."""
+    from georef.fusion.graph import solve_graph
+
+    _, log, cfg = _ppk_flight(tmp_path, 300.0, gyro_scale_ppm=(0.0, 0.0, 3000.0))
+    info = solve_graph(log, cfg.updated(method="graph", graph_scale_factor_sigma=0.002)).info
+    gyro, gyro_sigma = info["graph_gyro_scale_ppm"], info["graph_gyro_scale_sigma_ppm"]
+    assert gyro_sigma[2] < 500.0
+    assert abs(gyro[2] - 3000.0) < 3.0 * gyro_sigma[2], (gyro, gyro_sigma)
+    others = np.concatenate([info["graph_accel_scale_ppm"], gyro[:2]])
+    others_sigma = np.concatenate([info["graph_accel_scale_sigma_ppm"], gyro_sigma[:2]])
+    assert np.all(np.abs(others) < 3.0 * others_sigma), (others, others_sigma)
+
+
+def test_bias_factor_is_the_random_walk_of_the_scaled_bias():
+    """``_bias_factor``'s whitened error at any values is ``(B_b - B_a - diag(rate change) s) / sigma``, and without
+    scale factors GTSAM's own between factor ``B_b - B_a``."""
+    import gtsam
+
+    from georef.fusion.graph import SCALE, _bias_factor
+
+    rng = np.random.default_rng(3)
+    sigma = np.array([1e-3, 2e-3, 3e-3, 1e-5, 2e-5, 3e-5])
+    change = rng.normal(size=6) * [0.5, 0.5, 2.0, 0.1, 0.1, 0.3]
+    at = gtsam.Values()
+    at.insert(1, gtsam.imuBias.ConstantBias(rng.normal(size=3) * 0.01, rng.normal(size=3) * 1e-4))
+    at.insert(2, gtsam.imuBias.ConstantBias(rng.normal(size=3) * 0.01, rng.normal(size=3) * 1e-4))
+    at.insert(SCALE, rng.normal(size=6) * 1e-3)
+    factor = _bias_factor(gtsam, 1, 2, np.diag(sigma**2), change, at)
+    plain = _bias_factor(gtsam, 1, 2, np.diag(sigma**2), None, at)
+    for _ in range(3):
+        values = gtsam.Values()
+        a, b = rng.normal(size=6) * 0.01, rng.normal(size=6) * 0.01
+        scale = rng.normal(size=6) * 1e-3
+        values.insert(1, gtsam.imuBias.ConstantBias(a[:3], a[3:]))
+        values.insert(2, gtsam.imuBias.ConstantBias(b[:3], b[3:]))
+        values.insert(SCALE, scale)
+        expected = (b - a - change * scale) / sigma
+        assert factor.error(values) == pytest.approx(0.5 * expected @ expected, rel=1e-9)
+        walk = (b - a) / sigma
+        assert plain.error(values) == pytest.approx(0.5 * walk @ walk, rel=1e-9)

@@ -67,6 +67,8 @@ class SimConfig:
     * ``plan``: the vehicle and its path (``FlightPlan``, ``MulticopterPlan`` or ``CarPlan``);
     * ``imu_preset``: a name of :data:`georef.imu_errors.IMU_PRESETS`; ``gyro_bias_rad_s`` [rad/s] and
       ``accel_bias_mps2`` [m/s^2] (body x, y, z) force the turn-on biases (None: drawn from the preset);
+      ``gyro_scale_ppm`` and ``accel_scale_ppm`` (body x, y, z) are scale-factor errors, measured = (1 + s) x true
+      (the presets have none: zero unless set);
     * ``vibration``: :class:`VibrationModel` (kind none/rotor/white/narrowband) or None;
     * ``unit``: the POS unit's own attitude and IACC outputs, or None for a vehicle without one (POS.txt
       then has no ROLL/PITCH/YAW/IACC columns);
@@ -90,6 +92,8 @@ class SimConfig:
     seed: int = 1
     gyro_bias_rad_s: tuple[float, float, float] | None = None
     accel_bias_mps2: tuple[float, float, float] | None = None
+    gyro_scale_ppm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    accel_scale_ppm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     magnetometer: MagnetometerModel | None = None
     autopilot: AutopilotModel | None = None
 
@@ -97,7 +101,7 @@ class SimConfig:
         if not isinstance(self.plan, tuple(VEHICLES.values())):
             raise TypeError(f"plan must be one of {', '.join(t.__name__ for t in VEHICLES.values())}, "
                             f"got {type(self.plan).__name__}")
-        for name in ("gyro_bias_rad_s", "accel_bias_mps2"):
+        for name in ("gyro_bias_rad_s", "accel_bias_mps2", "gyro_scale_ppm", "accel_scale_ppm"):
             value = getattr(self, name)
             if value is not None and np.shape(value) != (3,):
                 raise ValueError(f"{name} needs three numbers (body x, y, z), got {value!r}")
@@ -272,7 +276,9 @@ def simulate(cfg: SimConfig) -> SimulatedFlight:
     model = imu_preset(cfg.imu_preset)
     gyro, accel, gyro_bias, accel_bias = corrupt_imu(nav.omega_ib_b, nav.f_ib_b, row_time, model,
                                                      cfg.vibration, rng, gyro_turn_on=cfg.gyro_bias_rad_s,
-                                                     accel_turn_on=cfg.accel_bias_mps2)
+                                                     accel_turn_on=cfg.accel_bias_mps2,
+                                                     gyro_scale=np.asarray(cfg.gyro_scale_ppm) * 1e-6,
+                                                     accel_scale=np.asarray(cfg.accel_scale_ppm) * 1e-6)
     unit = _unit_outputs(cfg, nav, accel - nav.f_ib_b, rng) if cfg.unit is not None else None
     fixes, held = _gnss(cfg, fine, fine_rate, row_time, rng)
 

@@ -181,13 +181,16 @@ def gauss_markov(n: int, dt: float, sigma: float, corr_time: float, rng: np.rand
 def corrupt_imu(omega_ib_b: np.ndarray, f_ib_b: np.ndarray, t: np.ndarray, model: ImuErrorModel,
                 vibration: VibrationModel | None, rng: np.random.Generator,
                 gyro_turn_on: np.ndarray | None = None,
-                accel_turn_on: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+                accel_turn_on: np.ndarray | None = None, gyro_scale: np.ndarray | None = None,
+                accel_scale: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """Measured rates [rad/s] and specific forces [m/s^2] at times ``t`` [s], and the true biases (N, 3).
 
     Point samples: white noise with the datasheet PSD over the sample interval, turn-on bias,
     Gauss-Markov bias instability and vibration (:func:`vibration_samples`). ``gyro_turn_on`` [rad/s] and
     ``accel_turn_on`` [m/s^2] (body axes, (3,)) force the turn-on biases instead of the preset's random
-    draw; the draw is still made, so the rest of the noise is the same as without forcing.
+    draw; the draw is still made, so the rest of the noise is the same as without forcing. ``gyro_scale`` and
+    ``accel_scale`` (unitless, body x, y, z): scale-factor errors, each true rate and specific force measured as
+    (1 + s) times itself.
     """
     n = len(t)
     dt = float(np.median(np.diff(t)))
@@ -199,6 +202,10 @@ def corrupt_imu(omega_ib_b: np.ndarray, f_ib_b: np.ndarray, t: np.ndarray, model
     if accel_turn_on is not None:
         accel_on = np.asarray(accel_turn_on, dtype=float).reshape(3)
     accel_bias = accel_on + gauss_markov(n, dt, model.accel_markov_sigma, model.accel_bias_corr_time_s, rng)
+    if gyro_scale is not None:
+        omega_ib_b = omega_ib_b * (1.0 + np.asarray(gyro_scale, float).reshape(3))
+    if accel_scale is not None:
+        f_ib_b = f_ib_b * (1.0 + np.asarray(accel_scale, float).reshape(3))
     gyro = omega_ib_b + gyro_bias + rng.standard_normal((n, 3)) * np.sqrt(model.gyro_white_psd / dt)
     accel = f_ib_b + accel_bias + rng.standard_normal((n, 3)) * np.sqrt(model.accel_white_psd / dt)
     if vibration is not None:
