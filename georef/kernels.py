@@ -438,6 +438,10 @@ class Build:
     notices: tuple[str, ...]
 
 
+class BuildUnavailableError(RuntimeError):
+    """The installed numba cannot compile ahead of time (``numba.pycc`` is missing or fails to import)."""
+
+
 @functools.cache
 def _pycc() -> tuple[type, tuple[str, ...]]:
     """numba.pycc's ``CC`` class and numba's deprecation warnings from importing it, as text.
@@ -453,8 +457,9 @@ def _pycc() -> tuple[type, tuple[str, ...]]:
         try:
             from numba.pycc import CC
         except ImportError as exc:
-            raise RuntimeError(f"numba {toolchain()['numba']} cannot compile ahead of time ({exc}); install the "
-                               "numba range pyproject.toml names. The kernels run through the JIT meanwhile.") from exc
+            raise BuildUnavailableError(f"numba {toolchain()['numba']} cannot compile ahead of time ({exc}); install "
+                                   "the numba range pyproject.toml names (docs/kernels.md). georef runs its "
+                                   "kernels through numba's JIT meanwhile.") from exc
     notices = []
     for warning in caught:
         if issubclass(warning.category, NumbaPendingDeprecationWarning | NumbaDeprecationWarning):

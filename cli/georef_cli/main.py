@@ -814,20 +814,24 @@ def build_kernels(
     costs every run about 0.5 s of start-up. A build whose sources, numba, numpy or Python have changed since
     is never run; this command replaces it.
     """
-    from georef.kernels import KERNELS, build
+    from georef.kernels import KERNELS, BuildUnavailableError, build
 
     notices: list[str] = []
     for name in KERNELS:
-        if quiet:
-            result = build(name, force=force)
-        else:
-            with console.status(f"compiling the {name} kernel"):
+        try:
+            if quiet:
                 result = build(name, force=force)
-            console.print(f"{'built' if result.compiled else 'up to date'} {escape(str(result.path))}",
-                          highlight=False)
+            else:
+                with console.status(f"compiling the {name} kernel"):
+                    result = build(name, force=force)
+                console.print(f"{'built' if result.compiled else 'up to date'} {escape(str(result.path))}",
+                              highlight=False)
+        except BuildUnavailableError as exc:  # a numba without pycc: the user can install the tested range
+            console.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False)
+            raise typer.Exit(code=EXIT_USER_ERROR) from None
         notices += [notice for notice in result.notices if notice not in notices]
     if not quiet:
-        for notice in notices:  # numba.pycc's pending deprecation: docs/method-ins.md, "Ahead-of-time kernels"
+        for notice in notices:  # numba.pycc's pending deprecation, shown rather than filtered (docs/kernels.md)
             console.print(f"[yellow]notice from numba:[/] {escape(notice)}", highlight=False)
 
 
