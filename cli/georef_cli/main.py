@@ -807,7 +807,7 @@ def build_kernels(
     force: Annotated[bool, typer.Option("--force", help="Compile even the kernels whose build is up to date.")] = False,
     quiet: Quiet = False,
 ) -> None:
-    """Compile the filters' inner loops ahead of time (10-40 s each; nothing to do when up to date).
+    """Compile the filters' inner loops ahead of time (10-45 s each; nothing to do when up to date).
 
     The modules are written inside the installed georef package, or into $GEOREF_KERNEL_DIR when set (the
     runs then load them from there). Without this step georef runs the same loops through numba's JIT, which
