@@ -1,32 +1,53 @@
 """The compiled recursions, ahead of time when built, numba's JIT otherwise.
 
-The filters' inner loops are numba functions (:mod:`georef.fusion.ins_kernel`, :mod:`georef.fusion.axis_kernel`).
-Run through the JIT, even from numba's on-disk cache, they cost every new process about 0.55 s before the
-first epoch is filtered: 0.25 s to import numba and 0.3 s for numba to initialise its code generator when it
-loads the first cached function. ``georef build-kernels`` (run by ``make``) compiles the same Python source
-ahead of time with ``numba.pycc`` into ordinary extension modules next to this package; loading one takes
+The filters' inner loops are numba functions (:mod:`georef.fusion.ins_kernel`, :mod:`georef.fusion.axis_kernel`,
+:mod:`georef.attitude.mekf`, ...). Run through the JIT, even from numba's on-disk cache, they cost every new
+process about 0.55 s before the first epoch is filtered: 0.25 s to import numba and 0.3 s for numba to initialise
+its code generator when it loads the first cached function. ``georef build-kernels`` (run by ``make``) compiles
+the same Python source ahead of time with ``numba.pycc`` into ordinary extension modules; loading one takes
 milliseconds and imports no numba.
 
-A built module's name carries a hash of the kernel's source files (``_aot_ins_<hash>``), so a kernel
-edited after the build is never run from a stale binary: its module is simply not found and the JIT
-serves until ``georef build-kernels`` runs again. ``GEOREF_KERNELS=jit`` forces the JIT (tests compare
-the two), ``GEOREF_KERNELS=aot`` makes a missing build an error.
+A built module's name carries a hash of everything the compiled code depends on (``_aot_ins_<hash>``): the bytes
+of every ``georef`` source file that importing the kernel's module executes, directly or through other modules
+(found by reading their ``import`` statements, :func:`import_closure`), the exported signatures, and the Python,
+numba, llvmlite and numpy versions and the platform. A kernel whose sources or toolchain changed after the build
+is therefore never run from a stale binary: its module is not found and the JIT serves until ``georef
+build-kernels`` runs again. A JSON record of the inputs next to each build lets the loader say what changed.
+
+The builds live in the package directory, or in ``$GEOREF_KERNEL_DIR`` when that is set (a read-only install,
+tests). ``GEOREF_KERNELS=jit`` forces the JIT (tests compare the two), ``GEOREF_KERNELS=aot`` makes a missing or
+stale build an error that names it.
 """
 
 from __future__ import annotations
 
+import ast
 import functools
 import hashlib
 import importlib
+import importlib.machinery
+import importlib.util
+import json
 import os
+import platform
+import re
+import sys
+import sysconfig
+import tempfile
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from types import SimpleNamespace
+from types import ModuleType, SimpleNamespace
 
 import numpy as np
 
+PACKAGE = "georef"
 PACKAGE_DIR = Path(__file__).resolve().parent
+#: the environment variable naming the directory builds are written to and loaded from (default PACKAGE_DIR)
+DIR_VARIABLE = "GEOREF_KERNEL_DIR"
+#: version of the build procedure and of the record written next to each build; part of every build's hash
+BUILD_FORMAT = 2
 
 
 #: an argument or result: (dtype, number of dimensions); 0 dimensions is a scalar. Arrays are C-ordered.
@@ -60,15 +81,13 @@ class KernelFunction:
 
 @dataclass(frozen=True)
 class KernelSpec:
-    """One compiled module: the numba module it comes from, its exported functions, the files it is built from.
+    """One compiled module: the numba module it comes from and its exported functions.
 
-    ``sources`` are paths relative to the ``georef`` package: the kernel module and every module whose
-    numba functions it calls.
+    The files it is built from are not listed: :func:`import_closure` reads them off the module's imports.
     """
 
     jit_module: str
     functions: dict[str, KernelFunction]
-    sources: tuple[str, ...]
 
 
 F1, F2, F3, I1, B1 = ("float64", 1), ("float64", 2), ("float64", 3), ("int64", 1), ("bool", 1)
@@ -86,40 +105,244 @@ KERNELS: dict[str, KernelSpec] = {
          "corrected": KernelFunction(args=(F1, F1), returns=(F1,)),
          "finish_rows": KernelFunction(
             args=(F1, F2, I1, F2, F2, F3, F3),
-            returns=(B1, F2, F2, F3, F2, F2, F2))},
-        ("fusion/ins_kernel.py", "fusion/ins_layout.py", "fusion/strapdown.py", "frames/kernels.py",
-         "frames/earth.py")),
+            returns=(B1, F2, F2, F3, F2, F2, F2))}),
     "align": KernelSpec(
         "georef.fusion.alignment_kernel",
         {"preintegrate": KernelFunction(
             args=(F1, F2, F2, INT, F1, F1, F1, F1),
-            returns=(F3, F2, F2, F2, F2, F3, F3, F3, F3, F3, F3))},
-        ("fusion/alignment_kernel.py", "frames/kernels.py", "frames/earth.py")),
+            returns=(F3, F2, F2, F2, F2, F3, F3, F3, F3, F3, F3))}),
     "axis": KernelSpec(
         "georef.fusion.axis_kernel",
         {"axis_filter": KernelFunction(args=(F1, F2, F1, F2, F2, F1, F1, F1, FLOAT, INT),
-                                       returns=(F2, F2, F2, F2, F2, F2, F2, I1))},
-        ("fusion/axis_kernel.py",)),
+                                       returns=(F2, F2, F2, F2, F2, F2, F2, I1))}),
+    # the attitude filters: t, gyro, accel, mag, mag_reference, q0, b0, P0, gyro_noise, bias_walk, accel_sigma,
+    # mag_sigma, accel_gate, use_mag[, alpha, beta, kappa], rate_gate -> quaternions, biases, sigmas
+    "mekf": KernelSpec(
+        "georef.attitude.mekf",
+        {"mekf": KernelFunction(
+            args=(F1, F2, F2, F2, F1, F1, F1, F2, FLOAT, FLOAT, FLOAT, FLOAT, FLOAT, BOOL, FLOAT),
+            returns=(F2, F2, F2))}),
+    "ukf": KernelSpec(
+        "georef.attitude.ukf",
+        {"ukf": KernelFunction(
+            args=(F1, F2, F2, F2, F1, F1, F1, F2, FLOAT, FLOAT, FLOAT, FLOAT, FLOAT, BOOL, FLOAT, FLOAT, FLOAT,
+                  FLOAT),
+            returns=(F2, F2, F2))}),
+    "tilt": KernelSpec(
+        "georef.attitude.tilt",
+        {"complementary": KernelFunction(args=(F1, F2, F1, F1, FLOAT), returns=(F2,)),
+         "angle_bias_kalman": KernelFunction(args=(F1, F2, F1, F1, FLOAT, FLOAT, FLOAT), returns=(F2, F2))}),
 }
 
 #: which implementation each kernel was loaded from in this process ("aot" or "jit")
 LOADED: dict[str, str] = {}
+#: why the last load of a kernel in "auto" mode did not use an ahead-of-time build (absent when it did)
+FALLBACK: dict[str, str] = {}
+
+
+# --------------------------------------------------------------------------------------------------------------
+# what a build depends on
+
+
+def _module_file(module: str, root: Path) -> Path | None:
+    """The source file of ``georef`` module ``module`` under ``root`` (the package directory), or None when the
+    name is no module there (a name imported from a module, or a namespace package without ``__init__.py``)."""
+    parts = module.split(".")
+    if parts[0] != PACKAGE:
+        return None
+    base = root.joinpath(*parts[1:])
+    if len(parts) > 1 and base.with_suffix(".py").is_file():
+        return base.with_suffix(".py")
+    if (base / "__init__.py").is_file():
+        return base / "__init__.py"
+    return None
+
+
+_STATEMENT_START = re.compile(r"[ \t]*(?:import[ \t]|from[ \t.])")
+
+
+def import_statements(source: str) -> list[ast.Import | ast.ImportFrom]:
+    """Every ``import`` and ``from ... import`` statement of a Python source, at any depth (inside functions and
+    ``if`` blocks too: a superset of what one run imports).
+
+    Only the lines that begin such a statement (and their bracketed or backslashed continuation) are parsed,
+    1 ms against 67 ms for parsing the eight files of the "ins" kernel whole, which every run would pay. A
+    docstring line that happens to read like an import is parsed too; it can only add a file to the closure.
+    Statements that do not begin a line (``if x: import y``) are not seen: tests/test_kernels.py checks that
+    the package has none, against a full :func:`ast.parse` of every file.
+    """
+    lines = source.splitlines()
+    statements: list[ast.Import | ast.ImportFrom] = []
+    for number, line in enumerate(lines):
+        if not _STATEMENT_START.match(line):
+            continue
+        text = code = line.partition("#")[0]
+        end = number
+        while (code.count("(") > code.count(")") or code.rstrip().endswith("\\")) and end + 1 < len(lines):
+            end += 1
+            more = lines[end].partition("#")[0]
+            text, code = f"{text}\n{more}", f"{code}\n{more}"
+        try:
+            tree = ast.parse(text.strip())
+        except SyntaxError:
+            continue  # prose in a docstring
+        statements.extend(node for node in tree.body if isinstance(node, ast.Import | ast.ImportFrom))
+    return statements
+
+
+def imported_modules(statements: list[ast.Import | ast.ImportFrom], module: str, is_package: bool) -> list[str]:
+    """The absolute module names ``statements`` (in module ``module``) may import: ``from a import b`` gives
+    ``a`` and ``a.b`` (b may be a submodule); relative imports are resolved against ``module``."""
+    names = []
+    for node in statements:
+        if isinstance(node, ast.Import):
+            names.extend(alias.name for alias in node.names)
+            continue
+        if node.level:
+            package = module if is_package else module.rpartition(".")[0]
+            for _ in range(node.level - 1):
+                package = package.rpartition(".")[0]
+            base = f"{package}.{node.module}" if node.module else package
+        else:
+            base = node.module or ""
+        names.append(base)
+        names.extend(f"{base}.{alias.name}" for alias in node.names if alias.name != "*")
+    return names
+
+
+def import_closure(module: str, root: Path = PACKAGE_DIR) -> tuple[str, ...]:
+    """The ``georef`` source files that importing ``module`` may execute, as paths relative to ``root``.
+
+    Follows ``import`` and ``from ... import`` statements (:func:`import_statements`) recursively through the
+    package, including the ``__init__.py`` of every package on the way, which Python runs before a
+    submodule. Modules outside ``georef`` are not followed (numba's and numpy's versions are hashed instead);
+    nor are imports by computed name (``importlib.import_module(f"...")``), which the kernels do not use.
+    """
+    seen: set[str] = set()
+    files: set[Path] = set()
+    pending = [module]
+    while pending:
+        name = pending.pop()
+        if name in seen or not (name == PACKAGE or name.startswith(PACKAGE + ".")):
+            continue
+        seen.add(name)
+        parts = name.split(".")
+        pending.extend(".".join(parts[:i]) for i in range(1, len(parts)))  # parent packages run first
+        path = _module_file(name, root)
+        if path is None:
+            continue
+        files.add(path)
+        statements = import_statements(path.read_text(encoding="utf-8"))
+        pending.extend(imported_modules(statements, name, path.name == "__init__.py"))
+    return tuple(sorted(path.relative_to(root).as_posix() for path in files))
+
+
+def _distribution_version(name: str) -> str:
+    """The installed version of distribution ``name`` without importing it: from its ``.dist-info`` folder
+    name next to the package (standard for wheels), else from :mod:`importlib.metadata` (40 ms to import)."""
+    spec = importlib.util.find_spec(name)
+    if spec is not None and spec.origin:
+        found = list(Path(spec.origin).parent.parent.glob(f"{name}-*.dist-info"))
+        if len(found) == 1:
+            return found[0].name[len(name) + 1:-len(".dist-info")]
+    from importlib.metadata import version
+
+    return version(name)
 
 
 @functools.cache
-def source_hash(name: str) -> str:
-    """Twelve hex digits of SHA-256 over the kernel's source files (their bytes, in the listed order), computed
-    once per process (the JIT module is not reloaded within a process either)."""
-    digest = hashlib.sha256()
-    for relative in KERNELS[name].sources:
-        digest.update(relative.encode())
-        digest.update((PACKAGE_DIR / relative).read_bytes())
-    return digest.hexdigest()[:12]
+def toolchain() -> dict[str, str]:
+    """What besides the sources a compiled module depends on: interpreter, platform, numba, llvmlite, numpy."""
+    return {"python": f"{sys.implementation.name} {platform.python_version()}",
+            "platform": sysconfig.get_platform(),
+            "extension": importlib.machinery.EXTENSION_SUFFIXES[0],
+            "numba": _distribution_version("numba"),
+            "llvmlite": _distribution_version("llvmlite"),
+            "numpy": np.__version__}
+
+
+@functools.cache
+def build_inputs(name: str) -> dict:
+    """Everything kernel ``name``'s compiled module depends on, as recorded next to a build: the build format,
+    the exported signatures, SHA-256 of each source file in :func:`import_closure` and the :func:`toolchain`.
+    Computed once per process (the JIT module is not reloaded within a process either)."""
+    spec = KERNELS[name]
+    return {"format": BUILD_FORMAT,
+            "kernel": name,
+            "module": spec.jit_module,
+            "functions": {function: interface.numba_signature() for function, interface in spec.functions.items()},
+            "files": {relative: hashlib.sha256((PACKAGE_DIR / relative).read_bytes()).hexdigest()
+                      for relative in import_closure(spec.jit_module)},
+            **toolchain()}
+
+
+def build_hash(name: str) -> str:
+    """Twelve hex digits of SHA-256 over :func:`build_inputs` (canonical JSON)."""
+    text = json.dumps(build_inputs(name), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
 def aot_module_name(name: str) -> str:
-    """The extension module's name for the current sources of kernel ``name``."""
-    return f"_aot_{name}_{source_hash(name)}"
+    """The extension module's name for the current inputs of kernel ``name``."""
+    return f"_aot_{name}_{build_hash(name)}"
+
+
+def kernel_dir() -> Path:
+    """The directory builds are written to and loaded from: ``$GEOREF_KERNEL_DIR``, else the package."""
+    value = os.environ.get(DIR_VARIABLE, "").strip()
+    return Path(value).expanduser().resolve() if value else PACKAGE_DIR
+
+
+def _build_file(module_name: str, directory: Path) -> Path | None:
+    for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+        if (directory / f"{module_name}{suffix}").is_file():
+            return directory / f"{module_name}{suffix}"
+    return None
+
+
+def _builds(name: str, directory: Path, records: bool = False) -> list[Path]:
+    """Every compiled module of kernel ``name`` in ``directory``, whatever its hash (and their records)."""
+    pattern = re.compile(rf"_aot_{re.escape(name)}_[0-9a-f]{{12}}\.")
+    return sorted(path for path in directory.glob(f"_aot_{name}_*")
+                  if pattern.match(path.name) and (records or not path.name.endswith(".json")))
+
+
+def _differences(recorded: dict, current: dict) -> list[str]:
+    """What changed between a build's recorded inputs and the current ones, in words."""
+    changes = []
+    old_files, new_files = recorded.get("files", {}), current["files"]
+    changes += [f"{PACKAGE}/{path} changed" for path in sorted(old_files.keys() & new_files.keys())
+                if old_files[path] != new_files[path]]
+    changes += [f"{PACKAGE}/{path} is now imported" for path in sorted(new_files.keys() - old_files.keys())]
+    changes += [f"{PACKAGE}/{path} is no longer imported" for path in sorted(old_files.keys() - new_files.keys())]
+    for key in sorted(current.keys() - {"files"}):
+        if recorded.get(key) != current[key]:
+            changes.append(f"{key}: {recorded.get(key)!r} then, {current[key]!r} now")
+    return changes
+
+
+def stale_builds(name: str, directory: Path | None = None) -> list[str]:
+    """A sentence for each build of kernel ``name`` in ``directory`` that does not match the current inputs,
+    naming the file and what changed since it was built (from the record next to it, when there is one)."""
+    directory = kernel_dir() if directory is None else directory
+    current = build_inputs(name)
+    wanted = aot_module_name(name)
+    found = []
+    for path in _builds(name, directory):
+        module_name = path.name.split(".")[0]
+        if module_name == wanted:
+            continue
+        record = path.with_name(f"{module_name}.json")
+        try:
+            changes = _differences(json.loads(record.read_text()), current)
+        except (OSError, ValueError):
+            changes = ["it has no readable record of its inputs (an older georef built it)"]
+        found.append(f"{path} is stale: {'; '.join(changes) or 'its record matches, but not its name'}")
+    return found
+
+
+# --------------------------------------------------------------------------------------------------------------
+# loading
 
 
 def _mode() -> str:
@@ -157,20 +380,43 @@ def _guarded(function: Callable, interface: KernelFunction) -> Callable:
     return call
 
 
+def _import_build(module_name: str, path: Path) -> ModuleType:
+    """Import the extension module at ``path`` as ``georef.<module_name>`` (once per process)."""
+    qualified = f"{PACKAGE}.{module_name}"
+    if qualified in sys.modules:
+        return sys.modules[qualified]
+    spec = importlib.util.spec_from_file_location(qualified, path)
+    if spec is None or spec.loader is None:
+        raise ImportError(f"{path} is not an extension module this Python can load")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    sys.modules[qualified] = module
+    return module
+
+
 def load(name: str) -> SimpleNamespace:
-    """Kernel ``name``'s functions: from the ahead-of-time build when one matches the current sources, else
-    from the numba JIT module (unless ``GEOREF_KERNELS=aot``). Records the choice in :data:`LOADED`."""
+    """Kernel ``name``'s functions: from the ahead-of-time build when one matches the current sources and
+    toolchain, else from the numba JIT module (unless ``GEOREF_KERNELS=aot``, which raises ImportError naming
+    the stale build and what changed). Records the choice in :data:`LOADED`, a fallback's reason in
+    :data:`FALLBACK`."""
     spec = KERNELS[name]
     mode = _mode()
     module = None
+    FALLBACK.pop(name, None)
     if mode != "jit":
-        module_name = f"georef.{aot_module_name(name)}"
-        try:
-            module = importlib.import_module(module_name)
-        except ImportError as exc:
+        directory = kernel_dir()
+        module_name = aot_module_name(name)
+        path = _build_file(module_name, directory)
+        if path is not None:
+            module = _import_build(module_name, path)
+        else:
+            stale = stale_builds(name, directory)
+            reason = (f"no ahead-of-time build of the {name!r} kernel matches the current sources and toolchain "
+                      f"({module_name} in {directory}): "
+                      + (" ".join(stale) if stale else "there is no build of it there"))
             if mode == "aot":
-                raise ImportError(f"no ahead-of-time build of the {name!r} kernel for the current sources "
-                                  f"({module_name}); run 'georef build-kernels'") from exc
+                raise ImportError(f"{reason}; run 'georef build-kernels'")
+            FALLBACK[name] = reason
     LOADED[name] = "jit" if module is None else "aot"
     if module is None:
         module = importlib.import_module(spec.jit_module)
@@ -178,31 +424,84 @@ def load(name: str) -> SimpleNamespace:
                               for function, interface in spec.functions.items()})
 
 
-def build(name: str) -> Path:
-    """Compile kernel ``name`` ahead of time into this package, where :func:`load` finds it; returns the file.
+# --------------------------------------------------------------------------------------------------------------
+# building
 
-    Older builds of the same kernel are removed. Takes about 10 s per kernel.
+
+@dataclass(frozen=True)
+class Build:
+    """The result of :func:`build`: the module file, whether it was compiled now (False: it was up to date) and
+    the warnings numba issued when ``numba.pycc`` was imported (its pending deprecation)."""
+
+    path: Path
+    compiled: bool
+    notices: tuple[str, ...]
+
+
+class BuildUnavailableError(RuntimeError):
+    """The installed numba cannot compile ahead of time (``numba.pycc`` is missing or fails to import)."""
+
+
+@functools.cache
+def _pycc() -> tuple[type, tuple[str, ...]]:
+    """numba.pycc's ``CC`` class and numba's deprecation warnings from importing it, as text.
+
+    numba issues its ``NumbaPendingDeprecationWarning`` for pycc once, on import; Python's default filters
+    hide pending deprecations, so they are recorded here and shown by ``georef build-kernels`` instead.
     """
-    import warnings
+    from numba.core.errors import NumbaDeprecationWarning, NumbaPendingDeprecationWarning
 
-    from numba.core.errors import NumbaPendingDeprecationWarning
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", NumbaPendingDeprecationWarning)
+        warnings.simplefilter("always", NumbaDeprecationWarning)
+        try:
+            from numba.pycc import CC
+        except ImportError as exc:
+            raise BuildUnavailableError(f"numba {toolchain()['numba']} cannot compile ahead of time ({exc}); install "
+                                   "the numba range pyproject.toml names (docs/kernels.md). georef runs its "
+                                   "kernels through numba's JIT meanwhile.") from exc
+    notices = []
+    for warning in caught:
+        if issubclass(warning.category, NumbaPendingDeprecationWarning | NumbaDeprecationWarning):
+            notices.append(str(warning.message))
+        else:
+            warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
+    return CC, tuple(notices)
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NumbaPendingDeprecationWarning)
-        from numba.pycc import CC
 
-        spec = KERNELS[name]
-        jit_module = importlib.import_module(spec.jit_module)
-        module_name = aot_module_name(name)
+def build(name: str, output_dir: Path | str | None = None, *, force: bool = False) -> Build:
+    """Compile kernel ``name`` ahead of time into ``output_dir`` (default :func:`kernel_dir`, where
+    :func:`load` looks), with the record of its inputs next to it; older builds of the kernel there are
+    removed. Nothing is compiled when an up-to-date build is there, unless ``force``.
+
+    The module and its record are compiled in a scratch folder and renamed into place, so a reader never sees
+    half a file. Takes about 10 s per kernel.
+    """
+    directory = kernel_dir() if output_dir is None else Path(output_dir).resolve()
+    module_name = aot_module_name(name)
+    existing = _build_file(module_name, directory)
+    if existing is not None and not force:
+        return Build(existing, False, ())
+    CC, notices = _pycc()
+    spec = KERNELS[name]
+    jit_module = importlib.import_module(spec.jit_module)
+    directory.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=f".{module_name}-", dir=directory) as scratch:
         compiler = CC(module_name)
-        compiler.output_dir = str(PACKAGE_DIR)
+        compiler.output_dir = scratch
         compiler.verbose = False
         for function, interface in spec.functions.items():
             compiler.export(function, interface.numba_signature())(getattr(jit_module, function).py_func)
-        for old in PACKAGE_DIR.glob(f"_aot_{name}_*"):
-            old.unlink()
         compiler.compile()
-    built = sorted(PACKAGE_DIR.glob(f"{module_name}.*"))
-    if not built:
-        raise RuntimeError(f"numba.pycc produced no module {module_name} in {PACKAGE_DIR}")
-    return built[0]
+        produced = Path(scratch) / compiler.output_file
+        if not produced.is_file():
+            raise RuntimeError(f"numba.pycc produced no module {compiler.output_file} in {scratch}")
+        record = Path(scratch) / f"{module_name}.json"
+        record.write_text(json.dumps(build_inputs(name), indent=1, sort_keys=True) + "\n")
+        os.replace(record, directory / record.name)
+        os.replace(produced, directory / produced.name)
+    built = directory / produced.name
+    for old in _builds(name, directory, records=True):
+        if not old.name.startswith(module_name + "."):
+            old.unlink(missing_ok=True)
+    return Build(built, True, notices)

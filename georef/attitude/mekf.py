@@ -22,6 +22,7 @@ from georef.attitude.tilt import accel_tilt
 from georef.frames import dcm_to_quat, euler_to_dcm
 from georef.frames import quat_to_dcm as quats_to_dcm
 from georef.frames.kernels import quat_to_dcm
+from georef.kernels import load as load_kernel
 
 GRAVITY = 9.81
 DOWN = np.array([0.0, 0.0, 1.0])
@@ -237,6 +238,7 @@ def run_mekf(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, mag: np.ndarray
     """
     t, gyro, accel, mag, mag_reference, q0, P0, use_mag = initial_state(t, gyro, accel, mag, mag_reference,
                                                                         initial_bias_sigma)
-    quats, biases, sigmas = mekf(t, gyro, accel, mag, mag_reference, q0, np.zeros(3), P0, gyro_noise, bias_walk,
-                                 accel_sigma, mag_sigma, accel_gate, use_mag, rate_gate)
+    quats, biases, sigmas = load_kernel("mekf").mekf(t, gyro, accel, mag, mag_reference, q0, np.zeros(3), P0,
+                                                     gyro_noise, bias_walk, accel_sigma, mag_sigma, accel_gate,
+                                                     use_mag, rate_gate)
     return quats_to_dcm(quats), biases, sigmas

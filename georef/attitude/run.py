@@ -6,9 +6,10 @@ import numpy as np
 import pandas as pd
 
 from georef.attitude.mekf import run_mekf
-from georef.attitude.tilt import accel_tilt, angle_bias_kalman, complementary
+from georef.attitude.tilt import accel_tilt
 from georef.attitude.ukf import run_ukf
 from georef.frames import dcm_to_euler, wrap_360
+from georef.kernels import load as load_kernel
 
 METHODS = ("complementary", "kf", "mekf", "ukf")
 
@@ -39,9 +40,10 @@ def estimate_attitude(method: str, time: np.ndarray, gyro: np.ndarray, accel: np
     if method in ("complementary", "kf"):
         roll_acc, pitch_acc = accel_tilt(accel)
         if method == "complementary":
-            angles = complementary(time, gyro, roll_acc, pitch_acc, gain)
+            angles = load_kernel("tilt").complementary(time, gyro, roll_acc, pitch_acc, gain)
         else:
-            angles, biases = angle_bias_kalman(time, gyro, roll_acc, pitch_acc, 1e-5, 1e-7, accel_sigma**2)
+            angles, biases = load_kernel("tilt").angle_bias_kalman(time, gyro, roll_acc, pitch_acc, 1e-5, 1e-7,
+                                                                   accel_sigma**2)
             out["bias_roll_rate"] = np.degrees(biases[:, 0])
             out["bias_pitch_rate"] = np.degrees(biases[:, 1])
         out["roll"], out["pitch"] = np.degrees(angles[:, 0]), np.degrees(angles[:, 1])

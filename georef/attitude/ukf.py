@@ -17,6 +17,7 @@ from numba import njit
 from georef.attitude.mekf import DOWN, GRAVITY, initial_state
 from georef.frames import quat_to_dcm as quats_to_dcm
 from georef.frames.kernels import quat_from_rotvec, quat_mul, quat_normalise, quat_to_dcm
+from georef.kernels import load as load_kernel
 
 L = 6
 
@@ -156,6 +157,7 @@ def run_ukf(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, mag: np.ndarray 
     """Attitude UKF with TRIAD start; returns ``C_b_n`` (N, 3, 3), gyro biases (N, 3), error sigmas (N, 6)."""
     t, gyro, accel, mag, mag_reference, q0, P0, use_mag = initial_state(t, gyro, accel, mag, mag_reference,
                                                                         initial_bias_sigma)
-    quats, biases, sigmas = ukf(t, gyro, accel, mag, mag_reference, q0, np.zeros(3), P0, gyro_noise, bias_walk,
-                                accel_sigma, mag_sigma, accel_gate, use_mag, alpha, beta, kappa, rate_gate)
+    quats, biases, sigmas = load_kernel("ukf").ukf(t, gyro, accel, mag, mag_reference, q0, np.zeros(3), P0,
+                                                   gyro_noise, bias_walk, accel_sigma, mag_sigma, accel_gate, use_mag,
+                                                   alpha, beta, kappa, rate_gate)
     return quats_to_dcm(quats), biases, sigmas
