@@ -71,7 +71,7 @@ def test_graph_at_least_as_accurate_as_rts(tmp_path, seed, outliers):
 
 
 def test_isam2_matches_batch(tmp_path):
-    flight, results = _run(tmp_path, SimConfig(seed=5), lm={"method": "graph"},
+    _, results = _run(tmp_path, SimConfig(seed=5), lm={"method": "graph"},
                            isam2={"method": "graph", "graph_solver": "isam2"})
     difference = frame_errors(results["isam2"].table, results["lm"].table)
     lm = results["lm"].table

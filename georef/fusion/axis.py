@@ -39,7 +39,7 @@ def solve_axis(log: PosLog, cfg: ProcessingConfig) -> NavSolution:
     iacc_u = log.vector("iacc")
     unit_rpy = np.radians(np.stack([log.data["roll"], log.data["pitch"], log.data["yaw"]], -1))
     lever_gnss = np.asarray(cfg.lever_arm_gnss)
-    sigma_n, sigma_e, sigma_u = cfg.gnss_sigma
+    sigma_n, sigma_e = cfg.gnss_sigma[:2]
     try:
         yaw_solution = recover_yaw_offset(gnss.time, gnss.lat_deg, gnss.lon_deg, gnss.height, t, iacc_u,
                                           unit_rpy, lever_gnss, (sigma_n, sigma_e), window=cfg.yaw_window,

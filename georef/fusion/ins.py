@@ -325,7 +325,7 @@ def initial_alignment(inputs: InsInputs, cfg: ProcessingConfig, start_time: floa
         result.heading_source = ("none: the heading is not observable from the motion and there is no unit yaw, "
                                  "magnetometer or autopilot yaw")
         return result
-    roll, pitch, yaw = dcm_to_euler(result.C_b_n)
+    roll, pitch, _ = dcm_to_euler(result.C_b_n)
     result.C_b_n = euler_to_dcm(roll, pitch, heading)
     P = result.covariance
     P[layout.ATT + 2, :] = 0.0
