@@ -1,4 +1,4 @@
-"""Robust on anyone's data: the figures of issue 10, with the defaults (installation facts only).
+"""Robust on anyone's data: the figures of docs/method-ins.md section 9, with the defaults (installation facts only).
 
 Sections (each can be run alone with --only):
 

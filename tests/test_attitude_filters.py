@@ -1,4 +1,4 @@
-"""Attitude filters on synthetic MARG data with a gyro bias of 0.1 rad/s (reference 002's condition)."""
+"""Attitude filters on synthetic MARG data with a gyro bias of 0.1 rad/s ([A3]'s condition, docs/attitude.md)."""
 
 from __future__ import annotations
 

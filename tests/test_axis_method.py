@@ -1,4 +1,4 @@
-"""The seed's per-axis method against truth on seed-like simulated flights.
+"""The per-axis method of Bošnjak (2014; docs/method-axis.md) against truth on simulated flights like his.
 
 Flights: MEMS IMU with rotor vibration, 30 m/s, ~4 deg crab, GNSS sigma 1/1/2 m, 50 Hz POS rows,
 unknown and drifting unit yaw origin, lever arms and boresight.
@@ -62,7 +62,7 @@ def test_axis_method_is_deterministic(tmp_path):
 
 @pytest.mark.parametrize("offset_deg", [-179.5, -135.0, -90.0, -30.0, 0.0, 45.0, 90.0, 150.0, 179.5])
 def test_yaw_offset_recovered_in_every_quadrant(tmp_path, offset_deg):
-    """The seed used atan and a rounding trick; atan2 on (cos, sin) must work across the whole circle."""
+    """Bošnjak (2014) used atan and a rounding trick; atan2 on (cos, sin) must work across the whole circle."""
     flight, result, _ = _run(tmp_path, SimConfig(seed=11, unit=UnitModel(yaw_offset_deg=offset_deg)))
     solution = result.nav.info["yaw_offset"]
     true_offset = np.radians(_true_offset_at(flight, solution.reference_time))

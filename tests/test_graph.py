@@ -49,7 +49,7 @@ def test_robust_kernel_resists_outliers(tmp_path):
     assert results["robust"].nav.info["graph_rejected_fixes"] == len(OUTLIERS)
 
 
-#: issue 13: "on the foundation's simulated flights the graph's horizontal RMS is no worse than rts + 5 %"
+#: the target: on the simulated helicopter flights the graph's horizontal RMS is no worse than rts + 5 %
 RTS_MARGIN = 1.05
 
 
@@ -99,7 +99,7 @@ def test_graph_covers_every_row_and_frame_rts_does(flight_dir, flight_defaults):
 
 
 def test_graph_does_not_crash_on_a_short_tactical_flight_with_an_outage(tmp_path):
-    """The issue's reproducer: 20 s at 125 Hz, tactical FOG, a 10-s outage and a 10-m outlier made the marginals'
+    """A reported reproducer: 20 s at 125 Hz, tactical FOG, a 10-s outage and a 10-m outlier made the marginals'
     Cholesky fail ("indeterminate system", exit 3). It runs now; the flight's heading is not observable, so its
     quality checks fail (exit 4), as they do for rts."""
     from georef_cli.main import app

@@ -75,7 +75,7 @@ def flights(tmp_path_factory):
 @pytest.mark.parametrize("component", COMPONENTS)
 @pytest.mark.parametrize("kind", KINDS)
 def test_sigmas_are_honest_for_every_vibration_kind(flights, kind, component):
-    """The issue's target: 90-98 % of the frames' errors inside +-2 sigma, per component, pooled over 20
+    """The target: 90-98 % of the frames' errors inside +-2 sigma, per component, pooled over 20
     flights of the kind."""
     z = flights[1][kind][:, COMPONENTS.index(component)]
     share = float(np.mean(np.abs(z) <= 2.0))

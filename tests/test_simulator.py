@@ -1,4 +1,4 @@
-"""The simulator makes what it claims: seed-like flight geometry, consistent truth, stated noise levels."""
+"""The simulator makes what it claims: flight geometry as in Bošnjak (2014), consistent truth, stated noise levels."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The seed's per-axis method (``--method axis``), without the seed's flaws.
+"""The per-axis method of Bošnjak (2014; ``docs/method-axis.md``) as ``--method axis``, without its flaws.
 
 1. The unit's yaw origin is recovered (:mod:`georef.fusion.yaw_offset`) and follows drift.
 2. The level-frame accelerations IACC are rotated by that offset into NED, then into ECEF through

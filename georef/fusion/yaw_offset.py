@@ -1,4 +1,4 @@
-"""Recovery of the POS unit's unknown yaw origin (the seed's idea, made robust).
+"""Recovery of the POS unit's unknown yaw origin (the idea of Bošnjak 2014, ``docs/method-axis.md``; made robust).
 
 The unit logs its level-frame kinematic acceleration ``a_u`` (IACC) and its yaw on an azimuth reference
 that is rotated by an unknown, drifting angle ``d(t)`` from true north: ``yaw_true = yaw_unit + d`` and,
