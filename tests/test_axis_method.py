@@ -17,6 +17,10 @@ from georef.sim.flight import SimConfig, simulate
 from georef.sim.sensors import UnitModel
 
 SEEDS = [1, 2, 3, 4, 5]
+#: camera yaw RMS bound [deg]. Measured on this file's flights: at most 0.227 (seed 4; the nine yaw origins 0.179,
+#: the drifting unit 0.138); the worst of the twenty flights of ``benchmarks/accuracy.py --methods axis`` is 0.370.
+#: An origin left uncorrected by 0.4 deg, or a drift not followed, exceeds it.
+YAW_RMS_DEG = 0.4
 
 
 def _run(tmp_path, cfg: SimConfig):
@@ -50,7 +54,7 @@ def test_axis_method_against_truth(tmp_path, seed):
     solution = nav.info["yaw_offset"]
     true_offset = _true_offset_at(flight, solution.reference_time)
     assert abs(np.degrees(solution.offset) - true_offset) < 0.5
-    assert figures["yaw_rms_deg"] <= 1.0
+    assert figures["yaw_rms_deg"] <= YAW_RMS_DEG
 
 
 def test_axis_method_is_deterministic(tmp_path):
@@ -68,7 +72,7 @@ def test_yaw_offset_recovered_in_every_quadrant(tmp_path, offset_deg):
     true_offset = np.radians(_true_offset_at(flight, solution.reference_time))
     assert abs(np.degrees(wrap_pi(solution.offset - true_offset))) < 0.5
     errors = frame_errors(result.table, flight.truth_frames)
-    assert accuracy(errors)["yaw_rms_deg"] <= 1.0
+    assert accuracy(errors)["yaw_rms_deg"] <= YAW_RMS_DEG
 
 
 def test_yaw_drift_is_followed(tmp_path):
@@ -77,5 +81,5 @@ def test_yaw_drift_is_followed(tmp_path):
     cfg.plan.duration_s = 360.0
     flight, result, _ = _run(tmp_path, cfg)
     errors = frame_errors(result.table, flight.truth_frames)
-    assert accuracy(errors)["yaw_rms_deg"] <= 1.0
+    assert accuracy(errors)["yaw_rms_deg"] <= YAW_RMS_DEG
     assert np.degrees(result.nav.info["yaw_offset"].drift) * 60 == pytest.approx(3.0, abs=0.5)
