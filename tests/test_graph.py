@@ -214,7 +214,7 @@ def test_graph_vs_rts_check_fails_exactly_when_the_attitudes_depart(tmp_path, se
     separation is computed here from the two EO tables (graph minus rts at the frames, in the graph's sigmas):
     the check fails exactly when more than 2 % of the frames lie beyond 3 sigma in a camera angle or in
     horizontal position. Measured: seeds 1 and 3 agree (at most 1.5 and 2.3 sigma), seeds 2, 4 and 5 depart in
-    attitude only (81 %, 66 % and more of the keyframes beyond 3 sigma; positions within 1.5 sigma)."""
+    attitude only (81 %, 66 % and 81 % of the keyframes beyond 3 sigma; positions within 1.5 sigma)."""
     from georef.qc import GRAPH_SEPARATION_SHARE, GRAPH_SEPARATION_SIGMA, assess_result
 
     flight = simulate(SimConfig.for_vehicle("car", 180.0, seed=seed))
