@@ -1,4 +1,4 @@
-"""Accuracy and honesty of every method against truth over simulated seed-like flights (Monte-Carlo).
+"""Accuracy and honesty of every method against truth over simulated flights like those of Bošnjak (2014) (Monte-Carlo).
 
 Prints per method the mean and worst RMS figures, the GNSS-interpolation baseline, the yaw-offset error of
 the recovery, and the share of frames whose error lies inside 2 sigma with rms(error/sigma) (NEES-like).

@@ -1,6 +1,7 @@
 """Cost per step of every attitude filter (compiled), on 60 s of 200 Hz MARG data, one core.
 
-Reference 000's MATLAB MEKF took 718 us per iteration; the target here is at most 2 us for the MEKF.
+The MATLAB MEKF of [A1] (docs/attitude.md, References) took 718 us per iteration; the target here is at
+most 2 us for the MEKF.
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ def main() -> None:
     print(f"{n} samples, best of 5, including the Python wrapper and output conversion:")
     for name, func in cases.items():
         cost = per_step(func, n)
-        print(f"  {name:<28} {cost:8.3f} us/step   ({718.0 / cost:,.0f}x faster than reference 000's MATLAB)")
+        print(f"  {name:<28} {cost:8.3f} us/step   ({718.0 / cost:,.0f}x faster than [A1]'s MATLAB)")
 
 
 if __name__ == "__main__":

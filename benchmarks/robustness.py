@@ -1,4 +1,4 @@
-"""Robust on anyone's data: the figures of issue 10, with the defaults (installation facts only).
+"""Robust on anyone's data: the figures of docs/method-ins.md section 9, with the defaults (installation facts only).
 
 Sections (each can be run alone with --only):
 
@@ -26,9 +26,14 @@ import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
+
+if TYPE_CHECKING:
+    from georef.align import GnssEpochs
+    from georef.datasets.kitti import KittiLog
 
 COMPONENTS = ("north", "east", "up", "roll", "pitch", "yaw")
 SIGMAS = ("sigma_n", "sigma_e", "sigma_u", "sigma_roll", "sigma_pitch", "sigma_yaw")
@@ -114,7 +119,7 @@ def kitti(with_gtsam: bool) -> None:
         print(f"  GTSAM reference (its KITTI example's approach): {_gtsam_kitti():.2f} m")
 
 
-def graph_kitti(log, kept, rts_rms: float) -> None:
+def graph_kitti(log: KittiLog, kept: GnssEpochs, rts_rms: float) -> None:
     """``--method graph`` on the same KITTI protocol, beside the rts figure: horizontal RMS at the withheld fixes,
     claimed sigma, GNSS fixes the robust pass rejected, the time offset and lever arm estimated, ground-vehicle
     factors, QC verdict of ``graph vs rts``, runtime (rts included, which the graph runs first)."""

@@ -37,7 +37,6 @@ SETTLED = 0.1
 MAX_ROUNDS = 4
 #: eigenvalues of an information matrix below this fraction of its largest are unobserved directions
 RANK_TOLERANCE = 1e-9
-NAMES = ("lever_x", "lever_y", "lever_z", "time_offset")
 
 
 @dataclass(frozen=True)

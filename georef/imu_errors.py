@@ -69,7 +69,7 @@ class ImuErrorModel:
 
 #: Named presets. Values are representative of the class, not of one serial number.
 IMU_PRESETS: dict[str, ImuErrorModel] = {
-    # MEMS IMU of the iMAR iVRU-RSSC class flown in the seed thesis.
+    # MEMS IMU of the iMAR iVRU-RSSC class flown by Bošnjak (2014; docs/method-axis.md, References).
     "mems-ivru": ImuErrorModel(
         gyro_arw_deg_rt_h=0.15, gyro_turn_on_bias_deg_h=20.0, gyro_bias_instability_deg_h=3.0,
         gyro_bias_corr_time_s=300.0, accel_vrw_mps_rt_h=0.06, accel_turn_on_bias_mg=2.0,

@@ -25,6 +25,7 @@ import math
 import platform
 from collections.abc import Iterable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import matplotlib
 
@@ -35,6 +36,15 @@ from matplotlib.ticker import FuncFormatter, MaxNLocator, MultipleLocator  # noq
 
 from georef.frames import C_e_n, wrap_360, wrap_pi  # noqa: E402
 from georef.io.atomic import atomic_write  # noqa: E402
+
+if TYPE_CHECKING:
+    import pandas as pd
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+    from georef.config import ProcessingConfig
+    from georef.pipeline import ProcessResult
+    from georef.qc import Verdict
 
 SECTIONS = [
     ("verdict", "Quality verdict"),
@@ -139,7 +149,7 @@ class _Raw:
 
 
 # ---- plots --------------------------------------------------------------------------------------------------
-def _png(fig) -> str:
+def _png(fig: Figure) -> str:
     """The figure as a ``data:image/png;base64,...`` URI (the figure is closed)."""
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=DPI, bbox_inches="tight")
@@ -155,14 +165,14 @@ def _tick_step(span: float) -> float:
     return 43200.0
 
 
-def _utc_axis(ax, t0: float, t1: float) -> None:
+def _utc_axis(ax: Axes, t0: float, t1: float) -> None:
     """Ticks at round UTC times, labelled ``hh:mm:ss``."""
     ax.xaxis.set_major_locator(MultipleLocator(_tick_step(max(t1 - t0, 1.0))))
     ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _pos: utc(x, 0)))
     ax.set_xlim(t0, t1)
 
 
-def _finish(fig, axes, result) -> None:
+def _finish(fig: Figure, axes: Axes | np.ndarray, result: ProcessResult) -> None:
     """UTC ticks and a grid on every axes, the time label under the bottom row, a tight layout."""
     t0, t1 = float(result.log.time[0]), float(result.log.time[-1])
     grid = np.atleast_1d(axes)
@@ -179,12 +189,12 @@ def _stride(n: int) -> int:
     return max(1, int(math.ceil(n / MAX_PLOT_POINTS)))
 
 
-def _shade_outages(ax, result, label: bool = False) -> None:
+def _shade_outages(ax: Axes, result: ProcessResult, label: bool = False) -> None:
     for k, (start, end) in enumerate(result.log.gnss.gaps()):
         ax.axvspan(start, end, color="0.85", lw=0, label="GNSS outage" if label and k == 0 else None)
 
 
-def _track(result) -> str:
+def _track(result: ProcessResult) -> str:
     nav, table, gnss = result.nav, result.table, result.log.gnss
     valid = nav.valid
     s = _stride(int(valid.sum()))
@@ -212,7 +222,7 @@ def _track(result) -> str:
     return _png(fig)
 
 
-def _accuracy(result) -> str:
+def _accuracy(result: ProcessResult) -> str:
     """Position sigma N/E/U [m] and attitude sigma [deg] of the IMU solution, each on its own axes."""
     nav = result.nav
     v = np.flatnonzero(nav.valid)[:: _stride(int(nav.valid.sum()))]
@@ -233,7 +243,7 @@ def _accuracy(result) -> str:
     return _png(fig)
 
 
-def _separation(result) -> str | None:
+def _separation(result: ProcessResult) -> str | None:
     """Forward minus smoothed per component, with the +-2 sigma band the filter expects, each on its own axes."""
     sep = result.nav.forward
     if sep is None or len(sep.time) == 0:
@@ -258,7 +268,7 @@ def _separation(result) -> str | None:
     return _png(fig)
 
 
-def _separation_table(result) -> str:
+def _separation_table(result: ProcessResult) -> str:
     sep = result.nav.forward
     rows = []
     for label, values, sigma, scale, unit, digits in (
@@ -273,7 +283,7 @@ def _separation_table(result) -> str:
     return _table(rows, header=("component", "RMS", "largest", "median expected σ", "inside ±2σ"), cls="numbers")
 
 
-def _position(result) -> str:
+def _position(result: ProcessResult) -> str:
     nav = result.nav
     v = np.flatnonzero(nav.valid)
     r0 = nav.r_e[v[0]]
@@ -294,7 +304,7 @@ def _position(result) -> str:
     return _png(fig)
 
 
-def _attitude(result) -> str | None:
+def _attitude(result: ProcessResult) -> str | None:
     table = result.table[result.table["lat"].notna()]
     if table.empty:
         return None
@@ -311,7 +321,7 @@ def _attitude(result) -> str | None:
     return _png(fig)
 
 
-def _innovations(result) -> str:
+def _innovations(result: ProcessResult) -> str:
     gnss = result.nav.gnss
     statistic = gnss.normalised_innovation_sq
     used = gnss.status >= 1
@@ -330,14 +340,14 @@ def _innovations(result) -> str:
     return _png(fig)
 
 
-def _status_values(result) -> np.ndarray | None:
+def _status_values(result: ProcessResult) -> np.ndarray | None:
     status = result.log.data.get("status")
     if status is None or len(status) != len(result.log.time):
         return None
     return np.asarray(status)
 
 
-def _gnss_status(result, gaps: list[tuple[float, float]]) -> str:
+def _gnss_status(result: ProcessResult, gaps: list[tuple[float, float]]) -> str:
     """STATUS[HEX] over time (one level per value), the GNSS fixes (used / rejected) and the IMU gaps."""
     status = _status_values(result)
     gnss = result.nav.gnss
@@ -378,7 +388,7 @@ def _gnss_status(result, gaps: list[tuple[float, float]]) -> str:
     return _png(fig)
 
 
-def _status_table(result) -> str:
+def _status_table(result: ProcessResult) -> str:
     status = _status_values(result)
     name = html.escape(result.log.column_names.get("status", "STATUS[HEX]"))
     if status is None:
@@ -401,7 +411,7 @@ def _status_table(result) -> str:
             + _table(rows, header=("value", "rows", "share", "when (UTC)"), cls="numbers"))
 
 
-def _imu_gaps(result) -> list[tuple[float, float]]:
+def _imu_gaps(result: ProcessResult) -> list[tuple[float, float]]:
     diagnostics = result.nav.diagnostics
     if diagnostics is not None:
         return list(diagnostics.imu_gaps)
@@ -424,7 +434,7 @@ def _gaps_table(gaps: list[tuple[float, float]]) -> str:
                      cls="numbers"))
 
 
-def _biases(result) -> str | None:
+def _biases(result: ProcessResult) -> str | None:
     info = result.nav.info
     if "gyro_bias" not in info:
         return None
@@ -442,7 +452,7 @@ def _biases(result) -> str | None:
     return _png(fig)
 
 
-def _yaw_offset(result) -> str | None:
+def _yaw_offset(result: ProcessResult) -> str | None:
     """The POS unit's yaw origin: the axis method's followed offset, or the full-state filter's smoothed origin
     state with its sigma (and the windows recovered from IACC that gave its prior, when there were)."""
     info = result.nav.info
@@ -495,7 +505,7 @@ def _yaw_offset(result) -> str | None:
 
 
 # ---- tables -------------------------------------------------------------------------------------------------
-def _verdict(verdict) -> str:
+def _verdict(verdict: Verdict) -> str:
     colour = _STATUS_COLOURS["pass" if verdict.passed else "fail"]
     word = "passed" if verdict.passed else "failed"
     reasons = [c for c in verdict.checks if c.status != "pass"]
@@ -510,7 +520,7 @@ def _verdict(verdict) -> str:
             + _table(rows, header=("status", "check", "what was found")))
 
 
-def _flag_counts(table) -> dict[str, int]:
+def _flag_counts(table: pd.DataFrame) -> dict[str, int]:
     counts: dict[str, int] = {}
     for flag in table["flag"].astype(str):
         for part in (p.strip() for p in flag.split(";")):
@@ -519,7 +529,7 @@ def _flag_counts(table) -> dict[str, int]:
     return counts
 
 
-def _summary(result, accuracy: dict[str, float] | None, gaps: list[tuple[float, float]]) -> str:
+def _summary(result: ProcessResult, accuracy: dict[str, float] | None, gaps: list[tuple[float, float]]) -> str:
     s = result.summary()
     table = result.table
     nav = result.nav
@@ -612,13 +622,14 @@ def _sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-def _inputs(result, extra: dict[str, Path | str] | None) -> list[tuple[str, Path]]:
+def _inputs(result: ProcessResult, extra: dict[str, Path | str | None] | None) -> list[tuple[str, Path]]:
     files = [("POS log", Path(result.log.path)), ("exposures", Path(result.exposures.path))]
     files += [(label, Path(p)) for label, p in (extra or {}).items() if p is not None]
     return files
 
 
-def _provenance(result, inputs: dict[str, Path | str] | None, command: str | None, created: dt.datetime) -> str:
+def _provenance(result: ProcessResult, inputs: dict[str, Path | str | None] | None, command: str | None,
+                created: dt.datetime) -> str:
     versions = [f"georef {_version('georef')}", f"Python {platform.python_version()}", f"NumPy {np.__version__}"]
     try:
         import pyproj
@@ -710,7 +721,7 @@ _SETTING_UNITS = {
 }
 
 
-def _settings(cfg) -> str:
+def _settings(cfg: ProcessingConfig) -> str:
     rows = []
     for f in dataclasses.fields(cfg):
         value = getattr(cfg, f.name)
@@ -725,7 +736,7 @@ def _settings(cfg) -> str:
             "defaults).</p>" + _table(rows, header=("setting", "value", "unit")))
 
 
-def _flagged(table) -> str:
+def _flagged(table: pd.DataFrame) -> str:
     flagged = table[table["flag"].astype(str) != ""]
     if flagged.empty:
         return "<p>No frame is flagged: every frame has a position, an attitude and their σ.</p>"
@@ -752,15 +763,15 @@ code { font-size: 0.9em; } code.hash { font-size: 0.8em; word-break: break-all; 
 """
 
 
-def flight_name(result) -> str:
+def flight_name(result: ProcessResult) -> str:
     """The flight's name: the folder of its POS log (flights are kept one per folder), else the file's stem."""
     path = Path(result.log.path).resolve()
     return path.parent.name or path.stem
 
 
-def write_report(result, path: Path | str, accuracy: dict[str, float] | None = None, verdict=None,
-                 inputs: dict[str, Path | str | None] | None = None, command: str | None = None,
-                 flight: str | None = None) -> Path:
+def write_report(result: ProcessResult, path: Path | str, accuracy: dict[str, float] | None = None,
+                 verdict: Verdict | None = None, inputs: dict[str, Path | str | None] | None = None,
+                 command: str | None = None, flight: str | None = None) -> Path:
     """Write the report as one self-contained HTML file (atomically); returns its path.
 
     ``verdict``: the run's :class:`georef.qc.Verdict` (computed here when not given); ``accuracy``: figures

@@ -12,7 +12,7 @@ from georef.sim.flight import SimConfig, SimulatedFlight, simulate
 
 @pytest.fixture(scope="session")
 def flight_dir(tmp_path_factory: pytest.TempPathFactory) -> tuple[SimulatedFlight, dict[str, Path]]:
-    """A 3-minute seed-like flight (50 Hz, MEMS with vibration, GNSS 1/1/2 m), written to disk."""
+    """A 3-minute flight like those of Bošnjak (2014) (50 Hz, MEMS with vibration, GNSS 1/1/2 m), written to disk."""
     flight = simulate(SimConfig(seed=1))
     paths = write_flight(flight, tmp_path_factory.mktemp("flight"))
     return flight, paths

@@ -1,4 +1,4 @@
-"""Reference 001's worked numbers, reproduced to the printed precision."""
+"""The worked numbers of [A2] (docs/attitude.md, References), reproduced to the printed precision."""
 
 from __future__ import annotations
 

@@ -71,7 +71,7 @@ def test_gate_rejects_an_outlier_and_recovers():
     z_fix = np.zeros((len(t_fix), 3))
     z_fix[12] += [30.0, 0, 0]
     r_fix = np.ones((len(t_fix), 3))
-    *_, innov, innov_var, status = axis_filter(t_imu, acc, t_fix, z_fix, r_fix, np.zeros(3), np.full(3, 1e-4),
+    *_, innov, _, status = axis_filter(t_imu, acc, t_fix, z_fix, r_fix, np.zeros(3), np.full(3, 1e-4),
                                                np.full(3, 1e-3), 16.27, 5)
     assert status[12] == 0 and (np.delete(status, 12) == 1).all()
     assert innov[12, 0] > 25.0

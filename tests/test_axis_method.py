@@ -1,4 +1,4 @@
-"""The seed's per-axis method against truth on seed-like simulated flights.
+"""The per-axis method of Bošnjak (2014; docs/method-axis.md) against truth on simulated flights like his.
 
 Flights: MEMS IMU with rotor vibration, 30 m/s, ~4 deg crab, GNSS sigma 1/1/2 m, 50 Hz POS rows,
 unknown and drifting unit yaw origin, lever arms and boresight.
@@ -17,6 +17,10 @@ from georef.sim.flight import SimConfig, simulate
 from georef.sim.sensors import UnitModel
 
 SEEDS = [1, 2, 3, 4, 5]
+#: camera yaw RMS bound [deg]. Measured on this file's flights: at most 0.227 (seed 4; the nine yaw origins 0.179,
+#: the drifting unit 0.138); the worst of the twenty flights of ``benchmarks/accuracy.py --methods axis`` is 0.370.
+#: An origin left uncorrected by 0.4 deg, or a drift not followed, exceeds it.
+YAW_RMS_DEG = 0.4
 
 
 def _run(tmp_path, cfg: SimConfig):
@@ -50,7 +54,7 @@ def test_axis_method_against_truth(tmp_path, seed):
     solution = nav.info["yaw_offset"]
     true_offset = _true_offset_at(flight, solution.reference_time)
     assert abs(np.degrees(solution.offset) - true_offset) < 0.5
-    assert figures["yaw_rms_deg"] <= 1.0
+    assert figures["yaw_rms_deg"] <= YAW_RMS_DEG
 
 
 def test_axis_method_is_deterministic(tmp_path):
@@ -62,13 +66,13 @@ def test_axis_method_is_deterministic(tmp_path):
 
 @pytest.mark.parametrize("offset_deg", [-179.5, -135.0, -90.0, -30.0, 0.0, 45.0, 90.0, 150.0, 179.5])
 def test_yaw_offset_recovered_in_every_quadrant(tmp_path, offset_deg):
-    """The seed used atan and a rounding trick; atan2 on (cos, sin) must work across the whole circle."""
+    """Bošnjak (2014) used atan and a rounding trick; atan2 on (cos, sin) must work across the whole circle."""
     flight, result, _ = _run(tmp_path, SimConfig(seed=11, unit=UnitModel(yaw_offset_deg=offset_deg)))
     solution = result.nav.info["yaw_offset"]
     true_offset = np.radians(_true_offset_at(flight, solution.reference_time))
     assert abs(np.degrees(wrap_pi(solution.offset - true_offset))) < 0.5
     errors = frame_errors(result.table, flight.truth_frames)
-    assert accuracy(errors)["yaw_rms_deg"] <= 1.0
+    assert accuracy(errors)["yaw_rms_deg"] <= YAW_RMS_DEG
 
 
 def test_yaw_drift_is_followed(tmp_path):
@@ -77,5 +81,5 @@ def test_yaw_drift_is_followed(tmp_path):
     cfg.plan.duration_s = 360.0
     flight, result, _ = _run(tmp_path, cfg)
     errors = frame_errors(result.table, flight.truth_frames)
-    assert accuracy(errors)["yaw_rms_deg"] <= 1.0
+    assert accuracy(errors)["yaw_rms_deg"] <= YAW_RMS_DEG
     assert np.degrees(result.nav.info["yaw_offset"].drift) * 60 == pytest.approx(3.0, abs=0.5)

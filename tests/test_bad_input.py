@@ -231,7 +231,7 @@ def test_raw_camera_log_requires_utc_offset(files, flight_config, tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Issue 12, "Input", "Fuzzing" and "Faults and absurd values": tolerant reading, strict about meaning.
+# Input, fuzzing, faults and absurd values: tolerant reading, strict about meaning.
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
@@ -261,7 +261,7 @@ def _rewrite(path: Path, sep: str | None = None, prefix: bytes = b"", encoding: 
 
 @pytest.mark.parametrize("name", ["Kamera.txt", "POS.txt"])
 def test_byte_order_mark_is_removed(files, flight_config, reference, name):
-    """Notepad and Excel save a UTF-8 BOM; the issue's 'required column Number is missing (found: \\ufeffNumber)'."""
+    """Notepad and Excel save a UTF-8 BOM; reported as 'required column Number is missing (found: \\ufeffNumber)'."""
     _rewrite(files[name], prefix=b"\xef\xbb\xbf")
     _same_table(process(files["POS.txt"], files["Kamera.txt"], flight_config), reference)
 
@@ -310,7 +310,7 @@ def test_missing_column_is_named_the_same_in_every_run(files):
 
 
 def test_camera_headers_match_ignoring_case_and_blanks(files, flight_config, reference):
-    """Also the issue's 'a header with a trailing space: Usecols do not match columns'."""
+    """Also the reported 'a header with a trailing space: Usecols do not match columns'."""
     _rewrite(files["Kamera.txt"], header=["NUMBER ", " time", "milliSECONDS"])
     _rewrite(files["POS.txt"], header=[f"{name} " if name == "TRIG_TIME" else name.lower() for name in
                                        _lines(files["POS.txt"])[0].rstrip("\n").split("\t")])
@@ -377,7 +377,7 @@ def test_separator_ambiguity_is_an_error_naming_the_line(files, flight_config):
 
 
 def test_kamera_line_cut_short_gets_a_flagged_row(files, flight_config):
-    """The issue's 38 silent losses: a last line of just '18', or a line that lost its last field."""
+    """The 38 silent losses of a reported file: a last line of just '18', or a line that lost its last field."""
     lines = _lines(files["Kamera.txt"])
     n = len(lines) - 1
     lines[10] = "\t".join(lines[10].split("\t")[:2]) + "\n"
@@ -448,7 +448,7 @@ def test_malformed_number_is_located_with_a_hint(files, text, hint):
 
 
 def test_stray_quotes_never_merge_frames(files, flight_config):
-    """The issue: '9' -> '"9' and '19' -> '19"' gave 179 rows, frames 10-18 merged into one unflagged row."""
+    """A reported file: '9' -> '"9' and '19' -> '19"' gave 179 rows, frames 10-18 merged into one unflagged row."""
     lines = _lines(files["Kamera.txt"])
     assert lines[9].startswith("9\t") and lines[19].startswith("19\t")
     lines[9] = '"' + lines[9]
@@ -590,7 +590,7 @@ def _max_errors(table: pd.DataFrame, truth: pd.DataFrame) -> dict[str, float]:
                                                   ("ROLL", "-4000", "-180..180 deg"),
                                                   ("ALTITUDE", "1e9", "-1000..50000 m")])
 def test_impossible_value_on_one_row_is_rejected(tmp_path, bundled_config, column, value, limit):
-    """The issue: OMGS_Y 2147483648 gave 55 km of error with sigma 0.71 m; IACC_Y 1e6 gave 335 m and 119 deg."""
+    """A reported log: OMGS_Y 2147483648 gave 55 km of error with sigma 0.71 m; IACC_Y 1e6 gave 335 m and 119 deg."""
     pos = _bundled_pos(tmp_path, _edit_cell(4500, column, lambda _: value))
     with pytest.raises(InputError) as info:
         process(pos, DATA / "Kamera.txt", bundled_config)
@@ -602,7 +602,7 @@ def test_impossible_value_on_one_row_is_rejected(tmp_path, bundled_config, colum
 
 @pytest.mark.parametrize("with_counter", [True, False])
 def test_time_jump_from_one_line_on_is_rejected(tmp_path, bundled_config, with_counter):
-    """The issue: TRIG_TIME +100000 from one line on gave 1,133 km of error with sigma 0.37 m."""
+    """A reported log: TRIG_TIME +100000 from one line on gave 1,133 km of error with sigma 0.37 m."""
 
     def edit(lines: list[str], header: list[str]) -> None:
         trig = header.index("TRIG_TIME")

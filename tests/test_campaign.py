@@ -107,9 +107,10 @@ def test_shared_calibration_needs_the_graph(tmp_path, method):
     assert "--method graph" in result.output
 
 
+@pytest.mark.slow  # three flights on a dask LocalCluster: about 20 s
 def test_batch_shared_calibration_end_to_end(tmp_path):
     """Three short flights of one installation (the lever arm not told) on a LocalCluster: calibration.json as
-    the issue specifies, every flight consistent, the campaign sigma below each flight's, and calibration.toml
+    the docs specify, every flight consistent, the campaign sigma below each flight's, and calibration.toml
     fed back with --config."""
     from dataclasses import replace
 

@@ -212,7 +212,7 @@ def test_user_text_is_printed_as_is(tmp_path):
     assert "flight[red]/POS.txt, lines 1852, 6052" in result.output     # the notice, path intact
 
 
-# ---- CLI conventions (issue 12): --version, stdout, choices, markup, evaluate's checks, shared options, summaries --
+# ---- CLI conventions: --version, stdout, choices, markup, evaluate's checks, shared options, summaries -------------
 def _pyproject_version() -> str:
     import tomllib
 

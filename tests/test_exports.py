@@ -374,6 +374,33 @@ def test_geojson_rfc7946_read_by_ogr(tmp_path, ortho):
     assert doc["features"][0]["properties"]["image"] == rows["image"].iloc[0]
 
 
+@pytest.mark.parametrize("fmt", ["geojson", "kml"])
+def test_every_column_reaches_ogr_as_a_field(tmp_path, ortho, fmt):
+    """GDAL/OGR (pyogrio) reads every column of every station back as a field of its feature. GeoJSON properties
+    are typed by OGR's own inference: numbers as Real, equal to the table's to the last bit; ids and flags as
+    String (so a frame id keeps its leading zeros). KML ExtendedData is untyped: OGR's text parses back to the
+    same floats."""
+    from pyogrio.raw import read
+
+    path = write_export(ortho.table, tmp_path / f"stations.{fmt}", fmt, frames=ortho.frames)
+    meta, _, _, values = read(path)
+    fields = dict(zip(meta["fields"], values, strict=True))
+    rows = _stations(ortho.table)
+    assert set(rows.columns) <= set(fields), set(rows.columns) - set(fields)
+    for column in rows.columns:
+        got, expected = fields[column], rows[column]
+        if expected.dtype.kind == "f":
+            if fmt == "kml":
+                assert got.dtype == object, column
+                got = np.array([float(v) if v else np.nan for v in got])
+            else:
+                assert got.dtype.kind == "f", (column, got.dtype)
+            np.testing.assert_array_equal(got, expected.to_numpy(float), err_msg=column)
+        else:
+            assert got.dtype == object, (column, got.dtype)
+            assert [v or "" for v in got] == expected.astype(str).tolist(), column
+
+
 def test_parge_keeps_every_frame(tmp_path, ortho):
     path = write_export(ortho.table, tmp_path / "parge.txt", "parge")
     back = pd.read_csv(path, sep="\t", dtype={"frame": str, "flag": str}, keep_default_na=False,

@@ -95,7 +95,7 @@ def _mutate(case: Case, rng: random.Random, kind: str) -> None:
         line = case.lines[i]
         k = rng.randrange(len(line) + 1)
         _mark(case, i, line[:k] + b'"' + line[k:])
-        # and a closing one a few lines later, as in the issue's "9 -> "9 and 19 -> 19""
+        # and a closing one a few lines later, as in a reported file's "9 -> "9 and 19 -> 19""
         if i + 10 < n and rng.random() < 0.7:
             other = case.lines[i + 10]
             _mark(case, i + 10, other + b'"')

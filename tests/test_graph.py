@@ -37,19 +37,21 @@ def test_graph_and_rts_agree_within_their_sigmas(tmp_path, seed):
 
 
 def test_robust_kernel_resists_outliers(tmp_path):
+    """Three outliers of 20-40 m: the robust pass drops them before the Gaussian refit, and the result is better
+    than the plain (Gaussian-only) graph's. Claims that hold on any flight, not on this seed alone: "exactly the
+    three outliers" does not (seeds 1-4 dropped 3, 3, 4 and 3 fixes: the 99.9 % gate loses about one good fix in
+    a thousand), nor "within rts + 5 %" (seed 4: 1.058; test_graph_at_least_as_accurate_as_rts covers it)."""
     sim = SimConfig(seed=2, gnss=GnssModel(outliers=OUTLIERS))
     flight, results = _run(tmp_path, sim, robust={"method": "graph"},
-                           plain={"method": "graph", "graph_robust": False}, rts={"method": "rts"})
+                           plain={"method": "graph", "graph_robust": False})
     robust = accuracy(frame_errors(results["robust"].table, flight.truth_frames))
     plain = accuracy(frame_errors(results["plain"].table, flight.truth_frames))
-    rts = accuracy(frame_errors(results["rts"].table, flight.truth_frames))
     assert robust["horizontal_rms_m"] < plain["horizontal_rms_m"]
-    assert robust["horizontal_rms_m"] <= RTS_MARGIN * rts["horizontal_rms_m"]
-    # the three outliers are dropped before the Gaussian refit, and no good fix with them
-    assert results["robust"].nav.info["graph_rejected_fixes"] == len(OUTLIERS)
+    # the outliers and at most one good fix of the 177 (expected 0.18 at the gate)
+    assert len(OUTLIERS) <= results["robust"].nav.info["graph_rejected_fixes"] <= len(OUTLIERS) + 1
 
 
-#: issue 13: "on the foundation's simulated flights the graph's horizontal RMS is no worse than rts + 5 %"
+#: the target: on the simulated helicopter flights the graph's horizontal RMS is no worse than rts + 5 %
 RTS_MARGIN = 1.05
 
 
@@ -71,7 +73,7 @@ def test_graph_at_least_as_accurate_as_rts(tmp_path, seed, outliers):
 
 
 def test_isam2_matches_batch(tmp_path):
-    flight, results = _run(tmp_path, SimConfig(seed=5), lm={"method": "graph"},
+    _, results = _run(tmp_path, SimConfig(seed=5), lm={"method": "graph"},
                            isam2={"method": "graph", "graph_solver": "isam2"})
     difference = frame_errors(results["isam2"].table, results["lm"].table)
     lm = results["lm"].table
@@ -99,7 +101,7 @@ def test_graph_covers_every_row_and_frame_rts_does(flight_dir, flight_defaults):
 
 
 def test_graph_does_not_crash_on_a_short_tactical_flight_with_an_outage(tmp_path):
-    """The issue's reproducer: 20 s at 125 Hz, tactical FOG, a 10-s outage and a 10-m outlier made the marginals'
+    """A reported reproducer: 20 s at 125 Hz, tactical FOG, a 10-s outage and a 10-m outlier made the marginals'
     Cholesky fail ("indeterminate system", exit 3). It runs now; the flight's heading is not observable, so its
     quality checks fail (exit 4), as they do for rts."""
     from georef_cli.main import app
@@ -206,18 +208,31 @@ def test_graph_estimates_the_lever_arm_it_is_not_told(flight_dir, flight_default
     assert (told.info["graph_lever_arm_sigma_m"] <= 0.05 + 1e-9).all()
 
 
-def test_graph_attitude_departing_from_rts_fails_qc(tmp_path):
-    """A simulated car (seed 2): the graph's horizontal positions agree with rts, but its attitudes do not (with
-    the ground-vehicle factors: pitch RMS 0.20 deg against rts's 0.10, a median 4.8 of the graph's sigma apart;
-    without them yaw 0.76 deg against 0.04). The check compares attitudes too and fails the run; the same check
-    passes the bundled flight (largest attitude separation about 1 sigma)."""
-    from georef.qc import assess_result
+@pytest.mark.parametrize("seed", [1, 2])
+def test_graph_vs_rts_check_fails_exactly_when_the_attitudes_depart(tmp_path, seed):
+    """QC's ``graph vs rts`` compares attitudes as well as horizontal positions. On simulated 3-minute cars, the
+    separation is computed here from the two EO tables (graph minus rts at the frames, in the graph's sigmas):
+    the check fails exactly when more than 2 % of the frames lie beyond 3 sigma in a camera angle or in
+    horizontal position. Measured: seeds 1 and 3 agree (at most 1.5 and 2.3 sigma), seeds 2, 4 and 5 depart in
+    attitude only (81 %, 66 % and 81 % of the keyframes beyond 3 sigma; positions within 1.5 sigma)."""
+    from georef.qc import GRAPH_SEPARATION_SHARE, GRAPH_SEPARATION_SIGMA, assess_result
 
-    flight = simulate(SimConfig.for_vehicle("car", 180.0, seed=2))
+    flight = simulate(SimConfig.for_vehicle("car", 180.0, seed=seed))
     paths = write_flight(flight, tmp_path / "car")
-    result = process(paths["POS.txt"], paths["Kamera.txt"], processing_config_for(flight).updated(method="graph"))
+    cfg = processing_config_for(flight)
+    result = process(paths["POS.txt"], paths["Kamera.txt"], cfg.updated(method="graph"))
+    graph = result.table
+    rts = process(paths["POS.txt"], paths["Kamera.txt"], cfg.updated(method="rts")).table
+    difference = frame_errors(graph, rts)
+    both = (graph["lat"].notna() & rts["lat"].notna()).to_numpy()
+    angles = np.max([np.abs(difference[a]) / graph[f"sigma_{a}"] for a in ("roll", "pitch", "yaw")], axis=0)
+    horizontal = np.hypot(difference["north"], difference["east"]) / np.hypot(graph["sigma_n"], graph["sigma_e"])
+    shares = {what: float(np.mean(np.asarray(z)[both] > GRAPH_SEPARATION_SIGMA))
+              for what, z in (("attitudes", angles), ("horizontal positions", horizontal))}
     check = [c for c in assess_result(result).checks if c.name == "graph vs rts"][0]
-    assert check.status == "fail" and "attitudes" in check.message
+    departs = [what for what, share in shares.items() if share > GRAPH_SEPARATION_SHARE]
+    assert (check.status == "fail") == bool(departs), (shares, check.message)
+    assert "attitudes" in check.message and "horizontal positions" in check.message
 
 
 @pytest.mark.parametrize("command", [
@@ -326,6 +341,7 @@ def _ppk_flight(tmp_path, duration, **sim_changes):
     return flight, read_pos(paths["POS.txt"]), processing_config_for(flight)
 
 
+@pytest.mark.slow
 def test_graph_fits_its_noise_with_the_lever_arm_the_data_show(tmp_path):
     """Lever arm not told: the EKF + RTS, applying zero, fits a horizontal GNSS variance several times the fixes'
     (6.4 on a 10-minute flight); the graph runs it again with the lever arm its robust pass found, so that the
@@ -348,6 +364,7 @@ def test_graph_fits_its_noise_with_the_lever_arm_the_data_show(tmp_path):
     np.testing.assert_array_equal(graph.diagnostics.lever_arm_given, 0.0)
 
 
+@pytest.mark.slow
 def test_graph_estimates_the_yaw_gyro_scale_factor_in_turns(tmp_path):
     """A yaw gyro reading 3000 ppm too much: the survey's turns make its scale factor observable (sigma well below
     the 2000-ppm prior; estimate within 3 sigma), and the other five, all zero, are estimated as zero within

@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
 import pytest
 from georef_cli.main import app
+from shared_runs import computed_once
 from typer.testing import CliRunner
 
 from georef.evaluate import accuracy, frame_errors
@@ -58,30 +60,39 @@ def _normalised(errors: pd.DataFrame, table: pd.DataFrame) -> np.ndarray:
 @pytest.fixture(scope="module")
 def flights(tmp_path_factory):
     """Twenty flights of each vibration kind with rts (today's flights with ekf too): per-flight figures and the
-    errors normalised by their sigmas."""
-    figures, normalised = [], {kind: [] for kind in KINDS}
-    for kind in KINDS:
+    errors normalised by their sigmas. Each flight is run by one xdist worker only (``shared_runs``)."""
+
+    def one(key: str) -> tuple[list[dict], np.ndarray]:
+        kind, seed = key.split("-")[0], int(key.split("-")[1])
         methods = ("rts", "ekf") if kind == "rotor" else ("rts",)
-        for seed in SEEDS:
-            flight, results = _run(tmp_path_factory.mktemp(f"{kind}{seed}"), sim_of(kind, seed), methods)
-            for method, result in results.items():
-                errors = frame_errors(result.table, flight.truth_frames)
-                figures.append({"kind": kind, "seed": seed, "method": method, **accuracy(errors)})
-                if method == "rts":
-                    normalised[kind].append(_normalised(errors, result.table))
-    return pd.DataFrame(figures), {kind: np.concatenate(z) for kind, z in normalised.items()}
+        flight, results = _run(tmp_path_factory.mktemp(key), sim_of(kind, seed), methods)
+        figures, normalised = [], None
+        for method, result in results.items():
+            errors = frame_errors(result.table, flight.truth_frames)
+            figures.append({"kind": kind, "seed": seed, "method": method, **accuracy(errors)})
+            if method == "rts":
+                normalised = _normalised(errors, result.table)
+        return figures, normalised
+
+    keys = [f"{kind}-{seed}" for kind in KINDS for seed in SEEDS]
+    runs = computed_once(tmp_path_factory, "ins-honesty", keys, one)
+    figures = [row for key in keys for row in runs[key][0]]
+    normalised = {kind: np.concatenate([runs[f"{kind}-{seed}"][1] for seed in SEEDS]) for kind in KINDS}
+    return pd.DataFrame(figures), normalised
 
 
+@pytest.mark.slow  # the Monte-Carlo fixture: eighty simulated flights
 @pytest.mark.parametrize("component", COMPONENTS)
 @pytest.mark.parametrize("kind", KINDS)
 def test_sigmas_are_honest_for_every_vibration_kind(flights, kind, component):
-    """The issue's target: 90-98 % of the frames' errors inside +-2 sigma, per component, pooled over 20
+    """The target: 90-98 % of the frames' errors inside +-2 sigma, per component, pooled over 20
     flights of the kind."""
     z = flights[1][kind][:, COMPONENTS.index(component)]
     share = float(np.mean(np.abs(z) <= 2.0))
     assert 0.90 <= share <= 0.98, share
 
 
+@pytest.mark.slow  # the Monte-Carlo fixture: eighty simulated flights
 def test_normalised_errors_on_todays_flights(flights):
     """NEES-like: the RMS of error / sigma near 1 for every component on today's flights."""
     z = flights[1]["rotor"]
@@ -89,6 +100,7 @@ def test_normalised_errors_on_todays_flights(flights):
     assert ((rms >= 0.75) & (rms <= 1.25)).all(), dict(zip(COMPONENTS, rms.round(2), strict=True))
 
 
+@pytest.mark.slow  # the Monte-Carlo fixture: eighty simulated flights
 def test_todays_flights_meet_the_accuracy_targets(flights):
     rts = flights[0].query("kind == 'rotor' and method == 'rts'")
     assert (rts["horizontal_rms_m"] <= 0.4).all()
@@ -98,6 +110,7 @@ def test_todays_flights_meet_the_accuracy_targets(flights):
     assert (rts["yaw_rms_deg"] <= 0.15).all()
 
 
+@pytest.mark.slow  # the Monte-Carlo fixture: eighty simulated flights
 def test_no_worse_than_before(flights):
     """Today's flights against the code before the rewrite (tests/data/todays_flights_before.json): for every
     figure, the mean per-flight difference new - before is not significantly positive (under two standard
@@ -110,6 +123,7 @@ def test_no_worse_than_before(flights):
         assert difference.mean() <= 2.0 * standard_error, (figure, difference.mean(), standard_error)
 
 
+@pytest.mark.slow  # the Monte-Carlo fixture: eighty simulated flights
 def test_rts_beats_ekf(flights):
     """The smoother beats the forward filter on the mean of every figure and on position on every flight."""
     wide = flights[0].query("kind == 'rotor'").pivot(index="seed", columns="method")
@@ -119,6 +133,7 @@ def test_rts_beats_ekf(flights):
         assert (wide[figure]["rts"] < wide[figure]["ekf"]).all(), figure
 
 
+@pytest.mark.slow  # the Monte-Carlo fixture: eighty simulated flights
 def test_vibration_costs_accuracy_but_stays_within_targets(flights):
     """White vibration at twice the reference level is the hardest case; even there every flight stays within
     metre-level position and sub-degree attitude, and the mean is worse than without vibration."""
@@ -132,33 +147,42 @@ def test_vibration_costs_accuracy_but_stays_within_targets(flights):
 
 @pytest.fixture(scope="module")
 def outage_flights(tmp_path_factory):
-    out = []
-    for seed in range(1, 11):
-        sim = SimConfig(seed=seed, gnss=GnssModel(outages=[(80.0, 40.0)],
-                                                  outliers=[(30.0, 25.0), (55.0, 40.0), (140.0, 20.0)]))
-        flight, results = _run(tmp_path_factory.mktemp(f"outage{seed}"), sim)
-        out.append((sim, flight, results["rts"]))
-    return out
+    """Ten of today's flights with a 40-s outage and three outliers, rts; each run by one xdist worker only. Per
+    flight what the tests read of it: the simulation's start [UTC s of day], the EO table, the truth at the
+    frames, every GNSS fix's time [UTC s of day] and status, the lines the summary names as rejected."""
+
+    def one(key: str) -> SimpleNamespace:
+        sim = SimConfig(seed=int(key), gnss=GnssModel(outages=[(80.0, 40.0)],
+                                                      outliers=[(30.0, 25.0), (55.0, 40.0), (140.0, 20.0)]))
+        flight, results = _run(tmp_path_factory.mktemp(f"outage{key}"), sim)
+        result = results["rts"]
+        return SimpleNamespace(start_utc_s=sim.start_utc_s, table=result.table, truth_frames=flight.truth_frames,
+                               gnss_time=result.nav.gnss.time, gnss_status=result.nav.gnss.status,
+                               rejected_lines=list(result.summary()["gnss_rejected_lines"]))
+
+    keys = [str(seed) for seed in range(1, 11)]
+    return list(computed_once(tmp_path_factory, "ins-outages", keys, one).values())
 
 
+@pytest.mark.slow  # the outage fixture: ten simulated flights
 def test_outliers_are_rejected_and_named(outage_flights):
-    for sim, _, result in outage_flights:
-        gnss = result.nav.gnss
-        rejected_times = gnss.time[gnss.status == 0] - sim.start_utc_s
+    for run in outage_flights:
+        rejected_times = run.gnss_time[run.gnss_status == 0] - run.start_utc_s
         np.testing.assert_allclose(np.sort(rejected_times), [30.0, 55.0, 140.0])
-        assert len(result.summary()["gnss_rejected_lines"]) == 3
+        assert len(run.rejected_lines) == 3
 
 
+@pytest.mark.slow  # the outage fixture: ten simulated flights
 def test_outage_frames_are_flagged_and_inside_their_sigma(outage_flights):
     normalised = []
-    for sim, flight, result in outage_flights:
-        table = result.table
-        t_rel = table["time"] - sim.start_utc_s
+    for run in outage_flights:
+        table = run.table
+        t_rel = table["time"] - run.start_utc_s
         in_outage = table["flag"].str.contains("GNSS outage")
         # every frame strictly between the last fix before and the first fix after the outage is flagged
         assert in_outage[(t_rel > 80.5) & (t_rel < 119.5)].all()
         assert not in_outage[(t_rel < 78.0) | (t_rel > 122.0)].any()
-        errors = frame_errors(table, flight.truth_frames)[in_outage.to_numpy()]
+        errors = frame_errors(table, run.truth_frames)[in_outage.to_numpy()]
         normalised.append(_normalised(errors, table[in_outage]))
         assert np.hypot(errors["north"], errors["east"]).max() < 1.5  # the INS bridges 40 s
     z = np.abs(np.concatenate(normalised))
@@ -167,6 +191,7 @@ def test_outage_frames_are_flagged_and_inside_their_sigma(outage_flights):
     assert (z <= 4.0).all()
 
 
+@pytest.mark.slow  # the outage fixture: ten simulated flights
 @pytest.mark.xfail(strict=True, reason="known limit: inside 40-s outages the pitch sigma is too small (88 % of "
                                        "errors inside 2 sigma over these 10 flights): with the datasheet as a prior "
                                        "of weight 10, a 3-minute flight keeps the gyro-bias drive near the preset's "
@@ -174,10 +199,10 @@ def test_outage_frames_are_flagged_and_inside_their_sigma(outage_flights):
                                        "KITTI and today's flights (georef/fusion/noise.py, PRIOR_WEIGHT)")
 def test_outage_pitch_inside_its_sigma(outage_flights):
     normalised = []
-    for _, flight, result in outage_flights:
-        table = result.table
+    for run in outage_flights:
+        table = run.table
         in_outage = table["flag"].str.contains("GNSS outage").to_numpy()
-        errors = frame_errors(table, flight.truth_frames)[in_outage]
+        errors = frame_errors(table, run.truth_frames)[in_outage]
         normalised.append(errors["pitch"].to_numpy() / table["sigma_pitch"].to_numpy()[in_outage])
     assert np.mean(np.abs(np.concatenate(normalised)) <= 2.0) >= 0.90
 

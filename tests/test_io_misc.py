@@ -31,7 +31,7 @@ def test_hex_parsing():
 
 
 def test_remapped_columns_and_ignored_extras(flight_dir, tmp_path):
-    flight, paths = flight_dir
+    _, paths = flight_dir
     frame = pd.read_csv(paths["POS.txt"], sep="\t", dtype=str)
     frame = frame.rename(columns={"LATITUDE": "Lat_deg", "IACC_X": "acc_level_x"})
     frame.insert(3, "EXTRA", "x")

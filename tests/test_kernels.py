@@ -56,6 +56,7 @@ def built(tmp_path_factory) -> Path:
         yield directory
 
 
+@pytest.mark.slow  # the JIT compiles every kernel: about 50 s
 @pytest.mark.parametrize("method", ["rts", "ekf", "axis"])
 def test_aot_and_jit_give_identical_tables(built, monkeypatch, method):
     cfg = load_config(DATA / "flight.toml").updated(method=method)

@@ -67,7 +67,7 @@ def test_covariance_against_monte_carlo(yaw, pitch, roll, gamma):
 
 
 def test_omega_is_about_the_pitch_axis_on_north_south_lines():
-    """The issue's case: ω and φ sigmas equal the roll and pitch sigmas only on east-west lines. Roll σ 0.01°,
+    """The reported case: ω and φ sigmas equal the roll and pitch sigmas only on east-west lines. Roll σ 0.01°,
     pitch σ 0.05° about the body axes: flying north, ω (about the map's east axis) gets the pitch σ."""
     body = np.diag(np.radians([0.01, 0.05, 0.2]) ** 2)  # roll, pitch, yaw axes of the body
     for yaw, expect in ((0.0, (0.05, 0.01)), (90.0, (0.01, 0.05)), (180.0, (0.05, 0.01)), (270.0, (0.01, 0.05))):

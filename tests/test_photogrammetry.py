@@ -87,7 +87,7 @@ def test_grid_coordinates_need_scale_and_curvature(crs, lat, lon, raw_error_at_l
     factor and the Earth's curvature; grid_to_camera_local removes them to 2 mm at 1 km or better."""
     rng = np.random.default_rng(11)
     proj = MapProjection(crs)
-    gamma, scale = proj.convergence_and_scale(lat, lon)
+    gamma, _ = proj.convergence_and_scale(lat, lon)
     C_c_n = euler_to_dcm(*np.radians([3.0, -2.0, 35.0]))
     r_cam, r_ground = _ground_points(lat, lon, 1760.0, rng)
     expected = _camera_image_coords(C_c_n, r_cam, r_ground, lat, lon)

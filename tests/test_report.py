@@ -113,6 +113,7 @@ def test_utc_formatting():
     assert utc(float("nan")) == "—"
 
 
+@pytest.mark.slow  # Chromium renders the page: about 20 s
 def test_report_is_one_self_contained_file_and_renders_in_headless_chromium(rts, tmp_path):
     browser = _chromium()
     figures = accuracy(frame_errors(rts.table, pd.read_csv(DATA / "truth.csv")))

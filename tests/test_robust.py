@@ -43,7 +43,7 @@ def _figures(flight, result, skip_s: float = 0.0) -> dict[str, float]:
 
 # ---- KITTI: a real car, 20-s GNSS outages every 60 s ------------------------------------------------------------
 def test_kitti_outages():
-    """The issue's protocol: the fixes of the last 20 s of every minute withheld, ``fuse`` defaults, scored at
+    """The outage protocol: the fixes of the last 20 s of every minute withheld, ``fuse`` defaults, scored at
     the withheld fixes against linear interpolation. Targets: at most 1.0 m horizontal RMS, at most 2 % of the
     remaining fixes rejected, and a claimed sigma that does not undersell the error by more than a third."""
     log = load_kitti()

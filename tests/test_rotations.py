@@ -82,6 +82,7 @@ def test_slerp_across_the_yaw_wrap():
     roll, pitch, yaw = slerp_euler(times, np.zeros(2), np.zeros(2), np.radians([179.0, -179.0]), [0.25, 0.5])
     np.testing.assert_allclose(np.degrees(wrap_pi(yaw - np.pi)), [-0.5, 0.0], atol=1e-9)
     np.testing.assert_allclose(roll, 0.0, atol=1e-12)
+    np.testing.assert_allclose(pitch, 0.0, atol=1e-12)
 
 
 def test_slerp_matches_scipy_slerp():

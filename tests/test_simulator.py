@@ -1,4 +1,4 @@
-"""The simulator makes what it claims: seed-like flight geometry, consistent truth, stated noise levels."""
+"""The simulator makes what it claims: flight geometry as in Bošnjak (2014), consistent truth, stated noise levels."""
 
 from __future__ import annotations
 
@@ -37,6 +37,8 @@ def test_positions_integrate_the_velocities():
     M, N = radii_of_curvature(traj.lat)
     lat_rate = np.gradient(traj.lat, traj.time)
     np.testing.assert_allclose(lat_rate[5:-5] * (M + traj.height)[5:-5], traj.v_n[5:-5, 0], atol=2e-3)
+    lon_rate = np.gradient(np.unwrap(traj.lon), traj.time)
+    np.testing.assert_allclose((lon_rate * (N + traj.height) * np.cos(traj.lat))[5:-5], traj.v_n[5:-5, 1], atol=2e-3)
 
 
 def test_straight_level_specific_force_is_gravity():

@@ -26,8 +26,9 @@ def test_clean_clock():
     assert report.n_quirks == 0
 
 
-def test_one_off_quirk_like_the_seed():
-    """One second logged as previous+1 instead of previous+100; the next second is right again."""
+def test_one_off_quirk_as_in_the_thesis_logs():
+    """One second logged as previous+1 instead of previous+100; the next second is right again (the logs of
+    Bošnjak 2014, docs/method-axis.md)."""
     trig, sampl, true = _clock(24513, 10)
     block = (trig == 2451800)
     trig[block] = 2451701

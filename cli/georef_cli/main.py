@@ -864,9 +864,5 @@ def evaluate(
     out.print(table)
 
 
-def main() -> None:  # pragma: no cover - console entry point
-    app()
-
-
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(app())

@@ -1,4 +1,4 @@
-"""A small attitude-filter toolkit (references 000-003 of the project; ``docs/attitude.md``).
+"""A small attitude-filter toolkit: the filters of the texts [A1]-[A4] listed in ``docs/attitude.md``, References.
 
 * :mod:`georef.attitude.kalman` — scalar Kalman filter (with the Arduino heuristic process noise) and a
   generic linear KF with a control input;

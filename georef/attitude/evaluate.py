@@ -1,9 +1,9 @@
 """Evaluating attitude series: RMS against a reference and a constant yaw offset between two series.
 
-Reference 000 could not evaluate yaw because the filter's yaw and the Vicon reference differ by an unknown
-constant. :func:`yaw_offset` estimates it in closed form: the rotation ``Rz(ψ)`` about the NED down axis that
-best maps one attitude series onto the other, ``ψ = atan2(M₁₀ − M₀₁, M₀₀ + M₁₁)`` with ``M = Σ C_ref C_estᵀ``
-(the least-squares fit of ``Rz(ψ) C_est ≈ C_ref`` in the Frobenius norm).
+[A1] (``docs/attitude.md``, References) could not evaluate yaw because the filter's yaw and the Vicon reference
+differ by an unknown constant. :func:`yaw_offset` estimates it in closed form: the rotation ``Rz(ψ)`` about the
+NED down axis that best maps one attitude series onto the other, ``ψ = atan2(M₁₀ − M₀₁, M₀₀ + M₁₁)`` with
+``M = Σ C_ref C_estᵀ`` (the least-squares fit of ``Rz(ψ) C_est ≈ C_ref`` in the Frobenius norm).
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""Textbook Kalman filters of reference 001: the scalar filter and a linear KF with a control input."""
+"""Textbook Kalman filters of [A2] (``docs/attitude.md``, References): the scalar filter and a linear KF with a
+control input."""
 
 from __future__ import annotations
 
@@ -37,7 +38,7 @@ class LinearKalman:
     """``x⁻ = A x + B u``, ``P⁻ = A P Aᵀ + Q``; update with ``z = H x + v``, ``v ~ N(0, R)``.
 
     ``diagonal_covariance`` zeroes the off-diagonal terms of ``P⁻`` after every prediction, as the worked
-    aircraft example of reference 001 does (a simplification the text makes by hand).
+    aircraft example of [A2] does (a simplification the text makes by hand).
     """
 
     A: np.ndarray

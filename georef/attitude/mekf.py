@@ -1,4 +1,4 @@
-"""Multiplicative EKF for attitude (reference 000, rederived): quaternion + gyro bias, TRIAD start.
+"""Multiplicative EKF for attitude ([A1] in ``docs/attitude.md``, rederived): quaternion + gyro bias, TRIAD start.
 
 * Nominal state: ``q`` (body-to-NED, Hamilton scalar first) and gyro bias ``b`` [rad/s].
 * Error state (6): ``δθ`` with ``q_true = q̂ ⊗ q(δθ)`` (body-frame rotation) and ``δb = b_true - b̂``.
@@ -6,8 +6,8 @@
   ``F = [[R(ω̄ Δt)ᵀ, -I Δt], [0, I]]``, ``Q = diag(σ_g² Δt² I, σ_b² Δt I)``.
 * Measurements: unit vectors in the body frame of known NED references ``r`` — gravity down ``[0, 0, 1]``
   from ``-f/|f|`` and the magnetic field ``[cos I, 0, sin I]`` from ``m/|m|``. Model ``h = Ĉᵀ r``; since
-  ``C_true = Ĉ (I + [δθ x])``, ``H = [[(Ĉᵀ r) x], 0]`` (derived here; the printed Jacobians of reference 000
-  are copy errors). The accelerometer's variance is inflated when ``|f|`` departs from g (linear acceleration).
+  ``C_true = Ĉ (I + [δθ x])``, ``H = [[(Ĉᵀ r) x], 0]`` (derived here; the printed Jacobians of [A1] are copy
+  errors). The accelerometer's variance is inflated when ``|f|`` departs from g (linear acceleration).
 * Update ``P = P⁻ - K S Kᵀ``; inject ``q ← q ⊗ q(δθ)``, ``b ← b + δb``; reset.
 """
 

@@ -1,4 +1,5 @@
-"""Tilt from the accelerometer, the complementary filter and the angle + gyro-bias Kalman filter (ref. 003).
+"""Tilt from the accelerometer, the complementary filter and the angle + gyro-bias Kalman filter ([A4] in
+``docs/attitude.md``).
 
 Roll and pitch each have their own one-dimensional filter. The gyro input of each is the Euler-angle rate
 from the body rates, ``roll' = p + (q sin r + r_z cos r) tan p_``, ``pitch' = q cos r - r_z sin r``.

@@ -2,9 +2,9 @@
 
 Sigma points live in the 6-dimensional error space ``[δθ, δb]`` around the nominal quaternion
 (``q_i = q̂ ⊗ q(δθ_i)``), as in Crassidis & Markley's USQUE (2003), so no quaternion is ever averaged.
-``2L + 1 = 13`` points with the scaled unscented transform; ``α``, ``β``, ``κ`` configurable (reference
-002 used 0.01, 2, 0). Measurements as in :mod:`georef.attitude.mekf`: gravity down from the accelerometer
-and the magnetic field, as unit vectors.
+``2L + 1 = 13`` points with the scaled unscented transform; ``α``, ``β``, ``κ`` configurable ([A3] in
+``docs/attitude.md`` used 0.01, 2, 0). Measurements as in :mod:`georef.attitude.mekf`: gravity down from the
+accelerometer and the magnetic field, as unit vectors.
 """
 
 from __future__ import annotations

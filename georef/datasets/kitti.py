@@ -119,10 +119,6 @@ class OutageScore:
     remaining: int
     rejected: int
 
-    @property
-    def rejected_share(self) -> float:
-        return self.rejected / self.remaining
-
 
 def score_outages(log: KittiLog, time: np.ndarray, lat_deg: np.ndarray, lon_deg: np.ndarray, height: np.ndarray,
                   sigma_n: np.ndarray, sigma_e: np.ndarray, rejected: int) -> OutageScore:

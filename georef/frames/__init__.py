@@ -1,7 +1,7 @@
 """Frames, angles, units and the Earth model: the one place that owns georef's conventions.
 
 Every other module imports its geodesy and rotations from here and derives none of its own.
-The conventions are those of ``shared/docs/conventions.md`` and are documented in ``docs/conventions.md``:
+The conventions are documented in ``docs/conventions.md``:
 
 * body ``b``: x forward, y right, z down (FRD);
 * navigation ``n``: local NED at the current position;

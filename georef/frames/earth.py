@@ -93,8 +93,8 @@ def ecef_to_geodetic_iterative(
 ) -> tuple[Array, Array, Array]:
     """ECEF [m] to geodetic lat, lon [rad], height [m] by fixed-point iteration on latitude.
 
-    The seed's ``xyz2llh.m`` method: start from h = 0 and iterate
-    ``lat = atan2(Z, p (1 - e^2 N / (N + h)))`` until the largest change is below ``tol`` [rad].
+    The method of ``xyz2llh.m`` in Bošnjak (2014; ``docs/method-axis.md``, References): start from h = 0 and
+    iterate ``lat = atan2(Z, p (1 - e^2 N / (N + h)))`` until the largest change is below ``tol`` [rad].
     Raises ``RuntimeError`` when ``max_iter`` is reached without convergence.
     """
     r_e = np.asarray(r_e, dtype=float)

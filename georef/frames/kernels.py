@@ -135,14 +135,6 @@ def add_skew(v: np.ndarray, M: np.ndarray, r0: int, c0: int, sign: float) -> Non
 
 
 @njit(cache=True)
-def skew_matrix(v: np.ndarray) -> np.ndarray:
-    """``[v x]`` (3, 3) of a 3-vector ``v``: ``[v x] u = v x u``."""
-    S = np.zeros((3, 3))
-    add_skew(v, S, 0, 0, 1.0)
-    return S
-
-
-@njit(cache=True)
 def _so3_into(v: np.ndarray, a: float, b: float, out: np.ndarray) -> None:
     """``out = I + a [v x] + b [v x]^2`` (3, 3)."""
     x, y, z = v[0], v[1], v[2]

@@ -82,9 +82,7 @@ class Alignment:
     heading_sigma: float       # best heading sigma inside the window [rad]
     heading_time: float        # when [s]
     window: tuple[float, float]
-    n_fixes: int
     variance_factor: float     # a-posteriori variance factor of the GNSS fit (1 = as the sigmas say)
-    static_start_s: float      # length of the quasi-static start [s] used for the gyro bias, 0 if none
     #: the POS unit's yaw-origin drift rate and its sigma [rad/s] when its IACC gives it, else None
     unit_drift: tuple[float, float] | None = None
     #: the start heading's sigma [rad] when it came from the unit's yaw and its IACC-recovered origin
@@ -309,7 +307,7 @@ def align(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, fix_time: np.ndarr
                        v=_fix_velocity(fix_time[first:], r_all))
     omega_ie = earth_rate_n(lat0)
     lever = np.asarray(lever_arm, dtype=float)
-    static_bias, static_length = _static_start(t, gyro, accel, row0, all_fixes, lat0)
+    static_bias, _ = _static_start(t, gyro, accel, row0, all_fixes, lat0)
     guess_g = np.zeros(3) if bias_g is None else np.asarray(bias_g, float).copy()
     if bias_g is None and static_bias is not None:
         guess_g = static_bias
@@ -355,8 +353,8 @@ def align(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, fix_time: np.ndarr
                      C_b_n=C_t_n @ C0, gyro_bias=b_g_fit, accel_bias=b_a_fit, covariance=cov_filter,
                      heading_source="motion", observable=bool(heading_sigma < HEADING_SIGMA_OK),
                      heading_sigma=float(heading_sigma), heading_time=float(heading_time),
-                     window=(float(t[row0]), float(t_end)), n_fixes=len(fixes.time), variance_factor=vf,
-                     static_start_s=static_length, bias_prior_sigma=(float(prior[0]), float(prior[1])))
+                     window=(float(t[row0]), float(t_end)), variance_factor=vf,
+                     bias_prior_sigma=(float(prior[0]), float(prior[1])))
 
 
 def _fit(win: _Window, bias_g: np.ndarray, bias_a: np.ndarray, heading_turn: float = 0.0,

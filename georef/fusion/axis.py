@@ -1,4 +1,4 @@
-"""The seed's per-axis method (``--method axis``), without the seed's flaws.
+"""The per-axis method of Bošnjak (2014; ``docs/method-axis.md``) as ``--method axis``, without its flaws.
 
 1. The unit's yaw origin is recovered (:mod:`georef.fusion.yaw_offset`) and follows drift.
 2. The level-frame accelerations IACC are rotated by that offset into NED, then into ECEF through
@@ -39,7 +39,7 @@ def solve_axis(log: PosLog, cfg: ProcessingConfig) -> NavSolution:
     iacc_u = log.vector("iacc")
     unit_rpy = np.radians(np.stack([log.data["roll"], log.data["pitch"], log.data["yaw"]], -1))
     lever_gnss = np.asarray(cfg.lever_arm_gnss)
-    sigma_n, sigma_e, sigma_u = cfg.gnss_sigma
+    sigma_n, sigma_e = cfg.gnss_sigma[:2]
     try:
         yaw_solution = recover_yaw_offset(gnss.time, gnss.lat_deg, gnss.lon_deg, gnss.height, t, iacc_u,
                                           unit_rpy, lever_gnss, (sigma_n, sigma_e), window=cfg.yaw_window,

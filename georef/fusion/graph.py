@@ -27,7 +27,10 @@
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -58,6 +61,16 @@ from georef.fusion.ins import InsInputs, _gap_scale, inputs_from_pos, solve_ins,
 from georef.fusion.ins_layout import NHC_GATE, NHC_LEVER
 from georef.fusion.solution import NavSolution
 
+if TYPE_CHECKING:  # gtsam is imported where it is used; importing this module needs no gtsam
+    import gtsam
+
+    from georef.align import GnssEpochs
+    from georef.fusion.noise import NoiseModel
+    from georef.io.pos import PosLog
+
+#: a gtsam.symbol_shorthand key function, e.g. ``X``: keyframe index -> key
+Symbol = Callable[[int], int]
+
 CAUCHY_K = 4.0
 MAX_KEY_GAP = 1.5  # s; longer gaps between fixes get keyframes about once a second
 #: [m^2/s] position integration noise of the preintegration. GTSAM's examples use 1e-8; with a tactical-grade gyro
@@ -72,7 +85,7 @@ MIN_EDGE_GAP = 0.5  # s; the first/last solved row gets its own keyframe when it
 LEVER_REFIT_MIN = 0.05
 
 
-def solve_graph(log, cfg: ProcessingConfig) -> NavSolution:
+def solve_graph(log: PosLog, cfg: ProcessingConfig) -> NavSolution:
     """Graph smoother on a POS log (body-frame OMGS deg/s, ACCS m/s^2, GNSS antenna fixes, optionally the unit's
     ROLL/PITCH/YAW deg): :func:`solve_graph_inputs` on :func:`georef.fusion.ins.inputs_from_pos`."""
     return solve_graph_inputs(inputs_from_pos(log), cfg)
@@ -301,7 +314,7 @@ class _QrMarginals:
     QR works on the whitened Jacobian itself; on a 60-s helicopter flight its covariances equal
     ``gtsam.Marginals``' to 4e-5 relative."""
 
-    def __init__(self, gtsam, graph, result):
+    def __init__(self, gtsam: ModuleType, graph: gtsam.NonlinearFactorGraph, result: gtsam.Values) -> None:
         self._gtsam = gtsam
         linear = graph.linearize(result)
         self._tree = linear.eliminateMultifrontal(gtsam.Ordering.ColamdGaussianFactorGraph(linear), gtsam.EliminateQR)
@@ -358,7 +371,8 @@ class _Fixes:
     lag: np.ndarray
 
 
-def _fixes_at_keyframes(gnss, use: np.ndarray, t: np.ndarray, key_rows: np.ndarray, to_plane) -> _Fixes:
+def _fixes_at_keyframes(gnss: GnssEpochs, use: np.ndarray, t: np.ndarray, key_rows: np.ndarray,
+                        to_plane: Callable[[np.ndarray], np.ndarray]) -> _Fixes:
     """The fixes ``use`` (indices into ``gnss``) at their keyframes (the first IMU row at or after each), one per
     keyframe."""
     rows = np.searchsorted(t, gnss.time[use], side="left")
@@ -371,14 +385,16 @@ def _fixes_at_keyframes(gnss, use: np.ndarray, t: np.ndarray, key_rows: np.ndarr
     return _Fixes(key=k, z=to_plane(r_ant), lag=gnss.time[use] - t[rows])
 
 
-def _antenna_residual(pose, velocity: np.ndarray, calibration: np.ndarray, z: np.ndarray, lag: float):
+def _antenna_residual(pose: gtsam.Pose3, velocity: np.ndarray, calibration: np.ndarray, z: np.ndarray,
+                      lag: float) -> tuple[np.ndarray, np.ndarray]:
     """GNSS residual [m, plane] ``p + R l + v (lag - dt) - z`` of one fix at its keyframe (pose ``R, p``, velocity
     ``v`` [m/s]) with calibration ``(l [m, body], dt [s])``, and the keyframe's rotation ``R``."""
     R = pose.rotation().matrix()
     return pose.translation() + R @ calibration[:3] + velocity * (lag - calibration[3]) - z, R
 
 
-def _gnss_factor(gtsam, key_x: int, key_v: int, z: np.ndarray, lag: float, sigma: np.ndarray, at):
+def _gnss_factor(gtsam: ModuleType, key_x: int, key_v: int, z: np.ndarray, lag: float, sigma: np.ndarray,
+                 at: gtsam.Values) -> gtsam.LinearContainerFactor:
     """One GNSS fix: the antenna position ``z`` [m, plane], measured ``dt`` seconds before its tag (``lag`` [s]
     before the keyframe), equals ``p + R l + v (lag - dt)`` at its keyframe, white noise ``sigma`` [m].
 
@@ -404,7 +420,8 @@ def _gnss_factor(gtsam, key_x: int, key_v: int, z: np.ndarray, lag: float, sigma
     return gtsam.LinearContainerFactor(linear, point)
 
 
-def _inliers(values, fixes: _Fixes, lever: np.ndarray, offset: float, sigma: np.ndarray, threshold: float):
+def _inliers(values: gtsam.Values, fixes: _Fixes, lever: np.ndarray, offset: float, sigma: np.ndarray,
+             threshold: float) -> np.ndarray:
     """Fixes whose whitened residual after the robust pass is within ``threshold`` (chi-square, 3 degrees of
     freedom; ``cfg.gate_chi2``, 99.9 % by default: one good fix in a thousand is lost). The residual is against
     the robust solution, which the fix itself pulled only weakly (the Cauchy kernel)."""
@@ -418,7 +435,8 @@ def _inliers(values, fixes: _Fixes, lever: np.ndarray, offset: float, sigma: np.
     return d2 <= threshold
 
 
-def _optimise(gtsam, cfg: ProcessingConfig, factors_at: dict[int, list], extra: dict[int, list], values, n_keys: int):
+def _optimise(gtsam: ModuleType, cfg: ProcessingConfig, factors_at: dict[int, list], extra: dict[int, list],
+              values: gtsam.Values, n_keys: int) -> gtsam.Values:
     """Optimise the graph of ``factors_at`` and ``extra`` (factors by keyframe) from ``values``: batch
     Levenberg-Marquardt, or ISAM2 fed one keyframe at a time (``cfg.graph_solver``) as a real-time user would."""
     if cfg.graph_solver != "isam2":
@@ -453,7 +471,8 @@ def _interval_means(t: np.ndarray, key_rows: np.ndarray, data: np.ndarray) -> np
     return (cumulative[b] - cumulative[a]) / (t[b] - t[a])[:, None]
 
 
-def _bias_factor(gtsam, key_a: int, key_b: int, covariance: np.ndarray, rate_change: np.ndarray | None, values):
+def _bias_factor(gtsam: ModuleType, key_a: int, key_b: int, covariance: np.ndarray, rate_change: np.ndarray | None,
+                 values: gtsam.Values) -> gtsam.NonlinearFactor:
     """The bias random walk from one IMU interval's bias ``B_a`` to the next's ``B_b``: ``B_b - B_a`` ~ N(0,
     ``covariance``) (6 x 6 diagonal; accelerometer [m/s^2], then gyro [rad/s], GTSAM's ``ConstantBias`` order).
 
@@ -480,7 +499,7 @@ def _bias_factor(gtsam, key_a: int, key_b: int, covariance: np.ndarray, rate_cha
     return gtsam.LinearContainerFactor(linear, point)
 
 
-def _copy_value(target, source, key: int) -> None:
+def _copy_value(target: gtsam.Values, source: gtsam.Values, key: int) -> None:
     """Copy variable ``key`` of ``source`` into ``target`` (gtsam.Values), by its symbol's type."""
     import gtsam
 
@@ -495,7 +514,8 @@ def _copy_value(target, source, key: int) -> None:
         target.insert(key, source.atVector(key))
 
 
-def _preintegration_params(gtsam, noise, gravity: float, omega: np.ndarray, nav_scale: float):
+def _preintegration_params(gtsam: ModuleType, noise: NoiseModel, gravity: float, omega: np.ndarray,
+                           nav_scale: float) -> gtsam.PreintegrationParams:
     """GTSAM preintegration parameters with the noise model the EKF + RTS fitted (``noise``: white specific force
     [m^2/s^3] and angular rate [rad^2/s]) scaled by ``nav_scale``; plane gravity [m/s^2] down and the Earth rate
     ``omega`` [rad/s] in the plane. The bias random walk is a factor of its own (:func:`_bias_factor`)."""
@@ -507,13 +527,13 @@ def _preintegration_params(gtsam, noise, gravity: float, omega: np.ndarray, nav_
     return params
 
 
-def _bias_drive(noise, bias_scale: float) -> np.ndarray:
+def _bias_drive(noise: NoiseModel, bias_scale: float) -> np.ndarray:
     """Covariance rate (6, 6) of the bias random walk, accelerometer [m^2/s^5] then gyro [rad^2/s^3] (GTSAM's
     ``ConstantBias`` order), the EKF's fitted drives times ``bias_scale``."""
     return np.diag(np.repeat([max(noise.q_ba, 1e-12), max(noise.q_bg, 1e-16)], 3)) * bias_scale
 
 
-def _process_noise_scale(rts, inputs: InsInputs) -> np.ndarray:
+def _process_noise_scale(rts: NavSolution, inputs: InsInputs) -> np.ndarray:
     """Per-row factors (N, 2) on the navigation noise and the bias drives of the interval ending at each row: the
     EKF's over IMU gaps (time gaps and a logger's linearly interpolated dropouts, found by
     :func:`georef.fusion.ins.imu_gaps` while ``solve_ins`` ran; the KITTI log has runs of 0.1-0.5 s). Preintegrating
@@ -566,8 +586,8 @@ def _fill_gaps(t: np.ndarray, key_rows: np.ndarray, max_gap: float) -> np.ndarra
     return np.unique(np.concatenate([key_rows, *extra])) if extra else key_rows
 
 
-def _unit_factor(gtsam, key_x: int, key_u: int, error: np.ndarray, H_rot: np.ndarray, pose, u: np.ndarray,
-                 sigma: float):
+def _unit_factor(gtsam: ModuleType, key_x: int, key_u: int, error: np.ndarray, H_rot: np.ndarray, pose: gtsam.Pose3,
+                 u: np.ndarray, sigma: float) -> gtsam.LinearContainerFactor:
     """The unit's roll, pitch, yaw [rad] at one keyframe: ``roll_u = roll + e_r``, ``pitch_u = pitch + e_p``,
     ``yaw_u = yaw - d``, with (roll, pitch, yaw) of ``C_b_n = C_t_n R`` and ``U = (e_r, e_p, d, d_dot)``,
     white noise ``sigma`` [rad].
@@ -590,7 +610,8 @@ def _unit_factor(gtsam, key_x: int, key_u: int, error: np.ndarray, H_rot: np.nda
     return gtsam.LinearContainerFactor(linear, at)
 
 
-def _nhc_factor(gtsam, key_x: int, key_v: int, pose, v_t: np.ndarray, sigma: np.ndarray):
+def _nhc_factor(gtsam: ModuleType, key_x: int, key_v: int, pose: gtsam.Pose3, v_t: np.ndarray,
+                sigma: np.ndarray) -> gtsam.LinearContainerFactor:
     """A ground vehicle's non-holonomic constraint at one keyframe: the body-frame lateral and vertical velocity
     ``(C_b_t^T v_t)_y,z`` [m/s] are zero, with sigmas ``sigma`` (2,) [m/s]; ``pose`` (``gtsam.Pose3``: body-to-plane
     rotation, plane position) and ``v_t`` (plane velocity [m/s]) are the linearisation point.
@@ -611,7 +632,9 @@ def _nhc_factor(gtsam, key_x: int, key_v: int, pose, v_t: np.ndarray, sigma: np.
     return gtsam.LinearContainerFactor(linear, at)
 
 
-def _add_ground_vehicle(gtsam, X, V, rts, gyro, key_rows, values, factors_at) -> dict[int, np.ndarray]:
+def _add_ground_vehicle(gtsam: ModuleType, X: Symbol, V: Symbol, rts: NavSolution, gyro: np.ndarray,
+                        key_rows: np.ndarray, values: gtsam.Values,
+                        factors_at: dict[int, list]) -> dict[int, np.ndarray]:
     """Non-holonomic factors (:func:`_nhc_factor`) at every keyframe when the EKF + RTS applied the constraint
     (``cfg.vehicle = "ground"``, or ``"auto"`` and its ground-vehicle test passed), with its variances: the fitted
     ``r_nhc`` [m^2/s^2] plus, as the EKF, the IMU's motion about the point ``NHC_LEVER`` [m] away where the
@@ -634,7 +657,8 @@ def _add_ground_vehicle(gtsam, X, V, rts, gyro, key_rows, values, factors_at) ->
     return added
 
 
-def _relinearise_ground_vehicle(gtsam, X, V, graph, result, sigma: dict[int, np.ndarray]):
+def _relinearise_ground_vehicle(gtsam: ModuleType, X: Symbol, V: Symbol, graph: gtsam.NonlinearFactorGraph,
+                                result: gtsam.Values, sigma: dict[int, np.ndarray]) -> gtsam.Values:
     """The non-holonomic factors of ``graph`` linearised again at the optimised ``result`` (replaced in place),
     and Levenberg-Marquardt run again from there. Where the graph turns the attitude far from the RTS (on KITTI
     up to 6.3 deg after a run of interpolated IMU samples) the first linearisation is off by up to 1.1 in a
@@ -651,7 +675,8 @@ def _relinearise_ground_vehicle(gtsam, X, V, graph, result, sigma: dict[int, np.
     return gtsam.LevenbergMarquardtOptimizer(graph, result, gtsam.LevenbergMarquardtParams()).optimize()
 
 
-def _unit_linearisation(C_t_n: np.ndarray, R: np.ndarray, u: np.ndarray, z: np.ndarray):
+def _unit_linearisation(C_t_n: np.ndarray, R: np.ndarray, u: np.ndarray,
+                        z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The unit-attitude factors' errors (K, 3) [rad] and rotation Jacobians ``E C`` (K, 3, 3) at K keyframes:
     ``C = C_t_n R`` (plane-to-NED times the pose's rotation), ``u`` (K, 4) the unit variables, ``z`` (K, 3) the
     unit's roll, pitch, yaw [rad] (see :func:`_unit_factor`)."""
@@ -665,7 +690,7 @@ DRIFT_PRIOR = np.radians(2.0) / 60.0  # rad/s, as the EKF without a recovered ya
 UNIT_H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0]])
 
 
-def _linear(gtsam, keys: list[int], blocks: list[np.ndarray], b: np.ndarray):
+def _linear(gtsam: ModuleType, keys: list[int], blocks: list[np.ndarray], b: np.ndarray) -> gtsam.LinearContainerFactor:
     """A linear Gaussian factor ``sum A_i x_i - b`` (whitened) on 4-vector variables, linearised at zero."""
     args = [item for key, A in zip(keys, blocks, strict=True) for item in (key, A)]
     factor = gtsam.JacobianFactor(*args, b, gtsam.noiseModel.Unit.Create(len(b)))
@@ -675,7 +700,9 @@ def _linear(gtsam, keys: list[int], blocks: list[np.ndarray], b: np.ndarray):
     return gtsam.LinearContainerFactor(factor, zero)
 
 
-def _add_unit_attitude(gtsam, U, X, unit_rpy, rts, t, key_rows, C_n_t_rows, cfg, values, factors_at) -> None:
+def _add_unit_attitude(gtsam: ModuleType, U: Symbol, X: Symbol, unit_rpy: np.ndarray, rts: NavSolution, t: np.ndarray,
+                       key_rows: np.ndarray, C_n_t_rows: np.ndarray, cfg: ProcessingConfig, values: gtsam.Values,
+                       factors_at: dict[int, list]) -> None:
     """Unit-attitude variables ``U(k) = (e_r, e_p, d, d_dot)`` [rad, rad/s] and their factors (see the module)."""
     level = np.radians(cfg.unit_level_sigma)
     tau = cfg.unit_level_time

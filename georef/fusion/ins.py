@@ -30,6 +30,7 @@ re-aligned from the data there and restarted (the smoother does not carry inform
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -54,6 +55,9 @@ from georef.fusion.noise import (
 from georef.fusion.solution import ForwardSeparation, GnssUse, NavSolution
 from georef.io.errors import GeorefError
 from georef.kernels import load as load_kernel
+
+if TYPE_CHECKING:
+    from georef.io.pos import PosLog
 
 REQUIRED_ROLES = ("gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
 #: this many GNSS fixes rejected in a row is a divergence: re-align and restart
@@ -325,7 +329,7 @@ def initial_alignment(inputs: InsInputs, cfg: ProcessingConfig, start_time: floa
         result.heading_source = ("none: the heading is not observable from the motion and there is no unit yaw, "
                                  "magnetometer or autopilot yaw")
         return result
-    roll, pitch, yaw = dcm_to_euler(result.C_b_n)
+    roll, pitch, _ = dcm_to_euler(result.C_b_n)
     result.C_b_n = euler_to_dcm(roll, pitch, heading)
     P = result.covariance
     P[layout.ATT + 2, :] = 0.0
@@ -1035,7 +1039,7 @@ def solve_ins(inputs: InsInputs, cfg: ProcessingConfig, smooth: bool = True) -> 
     )
 
 
-def inputs_from_pos(log, use_unit_attitude: bool = True) -> InsInputs:
+def inputs_from_pos(log: PosLog, use_unit_attitude: bool = True) -> InsInputs:
     """INS inputs from a POS log: OMGS [deg/s] -> rad/s, ACCS [m/s^2]; the unit's angles when present."""
     unit_rpy = None
     iacc = None
@@ -1047,11 +1051,11 @@ def inputs_from_pos(log, use_unit_attitude: bool = True) -> InsInputs:
                      unit_rpy=unit_rpy, iacc=iacc, source=str(log.path))
 
 
-def solve_rts(log, cfg: ProcessingConfig) -> NavSolution:
+def solve_rts(log: PosLog, cfg: ProcessingConfig) -> NavSolution:
     """``--method rts``: EKF and RTS smoother on a POS log."""
     return solve_ins(inputs_from_pos(log), cfg, smooth=True)
 
 
-def solve_ekf(log, cfg: ProcessingConfig) -> NavSolution:
+def solve_ekf(log: PosLog, cfg: ProcessingConfig) -> NavSolution:
     """``--method ekf``: the forward EKF alone on a POS log."""
     return solve_ins(inputs_from_pos(log), cfg, smooth=False)

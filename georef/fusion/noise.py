@@ -20,7 +20,7 @@ factors on the GNSS variances.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -103,11 +103,6 @@ class NoiseModel:
     def with_blocks(self, values: dict[int, float]) -> NoiseModel:
         return replace(self, **{BLOCK_FIELDS[b]: float(v) for b, v in values.items()})
 
-    def ratio_to(self, other: NoiseModel) -> dict[str, float]:
-        """Field-by-field ratio self / other (for reports)."""
-        return {f.name: getattr(self, f.name) / getattr(other, f.name) for f in fields(self)
-                if getattr(other, f.name) not in (0.0,)}
-
     # readable figures for summaries and reports -----------------------------------------------------------
     @property
     def vrw_h(self) -> float:
@@ -115,17 +110,9 @@ class NoiseModel:
         return float(np.sqrt(self.q_vel_h) * 60.0)
 
     @property
-    def vrw_v(self) -> float:
-        return float(np.sqrt(self.q_vel_v) * 60.0)
-
-    @property
     def arw_h(self) -> float:
         """Angle random walk about north/east [deg/sqrt(h)]."""
         return float(np.degrees(np.sqrt(self.q_att_h)) * 60.0)
-
-    @property
-    def arw_v(self) -> float:
-        return float(np.degrees(np.sqrt(self.q_att_v)) * 60.0)
 
 
 def datasheet_prior(model: ImuErrorModel, unit_level_sigma_deg: float, unit_level_time_s: float,

@@ -77,7 +77,7 @@ def mechanise(x: np.ndarray, dtheta: np.ndarray, dvel: np.ndarray, dtheta_prev: 
     v_new[2] += gravity(lat, h) * dt
 
     # position (trapezoidal velocity)
-    M, N = radii(lat)
+    M, _ = radii(lat)
     h_new = h - 0.5 * (v[2] + v_new[2]) * dt
     h_mid = 0.5 * (h + h_new)
     lat_new = lat + 0.5 * (v[0] + v_new[0]) * dt / (M + h_mid)

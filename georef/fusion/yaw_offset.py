@@ -1,4 +1,4 @@
-"""Recovery of the POS unit's unknown yaw origin (the seed's idea, made robust).
+"""Recovery of the POS unit's unknown yaw origin (the idea of Bošnjak 2014, ``docs/method-axis.md``; made robust).
 
 The unit logs its level-frame kinematic acceleration ``a_u`` (IACC) and its yaw on an azimuth reference
 that is rotated by an unknown, drifting angle ``d(t)`` from true north: ``yaw_true = yaw_unit + d`` and,
@@ -47,7 +47,6 @@ class WindowEstimate:
     time: np.ndarray
     offset: np.ndarray
     sigma: np.ndarray
-    n_fixes: np.ndarray
     accepted: np.ndarray
 
 
@@ -224,7 +223,7 @@ def window_offsets(
     centres = np.arange(gnss_time[inside][0] + window / 2, gnss_time[inside][-1] - window / 2 + 1e-9, step) \
         if inside.sum() > 1 else np.empty(0)
     rate = 1.0 / np.median(np.diff(gnss_time)) if len(gnss_time) > 1 else 1.0
-    out: dict[str, list] = {k: [] for k in ("time", "offset", "sigma", "n_fixes", "accepted")}
+    out: dict[str, list] = {k: [] for k in ("time", "offset", "sigma", "accepted")}
     sig = np.asarray(sigma_ne, dtype=float)
     for centre in centres:
         sel = np.flatnonzero(inside & (np.abs(gnss_time - centre) <= window / 2))
@@ -242,10 +241,8 @@ def window_offsets(
         out["time"].append(gnss_time[mid])
         out["offset"].append(offset)
         out["sigma"].append(sigma)
-        out["n_fixes"].append(n)
         out["accepted"].append(bool(sigma < np.radians(3.0)))
     arrays = {k: np.asarray(v, dtype=float if k != "accepted" else bool) for k, v in out.items()}
-    arrays["n_fixes"] = arrays["n_fixes"].astype(int)
     return WindowEstimate(**arrays)
 
 

@@ -145,7 +145,7 @@ def read_camera_log(source: Source, utc_offset_hours: float | None,
                     column_names: Mapping[str, str] | None = None) -> Exposures:
     """The camera's raw log; ``Time`` is local clock ``hh:mm:ss`` and ``utc_offset_hours`` is required.
 
-    UTC = local - offset (the seed's summer flights: offset +2 h). Columns beyond the first three
+    UTC = local - offset (the summer flights of Bošnjak 2014: offset +2 h). Columns beyond the first three
     (exposure, gain, bit depth, shift) are not needed for georeferencing and are ignored.
     """
     path = source_path(source)

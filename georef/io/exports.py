@@ -16,7 +16,7 @@ back with the consumer's own parsing code (ported, cited) or an independent vali
 * ``odm`` — OpenDroneMap ``geo.txt``: ``EPSG:nnnn`` line, then ``image x y z yaw pitch roll σh σv``; the angles
   are ``nan`` (ODM's "absent") unless ``odm_angles`` asks for them: ODM 3.6 turns them into ω, φ, κ with a
   frame error (docs/formats.md).
-* ``parge`` — the seed thesis's table: frame, latitude, longitude, height, roll, pitch, yaw minus track.
+* ``parge`` — the PARGE input table of Bošnjak (2014): frame, latitude, longitude, height, roll, pitch, yaw minus track.
 * ``geojson`` — RFC 7946: [longitude, latitude, WGS 84 ellipsoidal height] (the RFC's CRS), every column a
   property.
 * ``kml`` — OGC KML 2.2, ``altitudeMode absolute`` ("relative to sea level") with EGM96 heights, the sea level of

@@ -97,14 +97,6 @@ class Table:
     def __len__(self) -> int:
         return len(self.lines)
 
-    def take(self, keep: np.ndarray) -> None:
-        """Keep only the rows selected by the boolean mask or index array ``keep``."""
-        self.columns = {name: values[keep] for name, values in self.columns.items()}
-        self.lines = self.lines[keep]
-        if len(self.incomplete):
-            self.incomplete = self.incomplete[keep]
-            self.fields = self.fields[keep]
-
 
 # --------------------------------------------------------------------------------------------------- hex
 

@@ -1,7 +1,7 @@
 """Synthetic MARG (gyro, accelerometer, magnetometer) data for attitude-filter tests: an attitude rig.
 
 The rig turns smoothly about all axes (sums of sinusoids), with small linear accelerations. Sensors carry
-white noise and constant biases, as in the test conditions of reference 002 (gyro bias 0.1 rad/s).
+white noise and constant biases, as in the test conditions of [A3] in ``docs/attitude.md`` (gyro bias 0.1 rad/s).
 Frames: body FRD, navigation NED treated as inertial (Earth rate is far below these sensors' noise).
 """
 

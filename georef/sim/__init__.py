@@ -1,0 +1,1 @@
+"""Flight simulator: trajectories, sensors (IMU, GNSS, POS unit, camera) and the files a real flight leaves."""
