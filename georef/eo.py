@@ -21,7 +21,7 @@ from georef.align import GnssEpochs
 from georef.config import ProcessingConfig
 from georef.exposure import ExposureStates
 from georef.frames import C_e_n, dcm_to_euler, ecef_to_geodetic, skew, wrap_360
-from georef.frames.mounting import camera_attitude, lever_arm_ecef
+from georef.frames.mounting import camera_attitude, lever_arm_ecef, lever_arm_offset
 from georef.frames.rotations import euler_error_jacobian
 from georef.io.camera import Exposures
 from georef.io.image_names import ImageNames
@@ -99,7 +99,7 @@ def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpoc
         roll, pitch, yaw = dcm_to_euler(C_c_n)
         # Position covariance at the camera: IMU position plus the lever arm turned by attitude errors,
         # d(C_b_n l) = -[(C_b_n l) x] phi for a small NED rotation phi.
-        lever_n = C_b_n @ lever_cam
+        lever_n = lever_arm_offset(C_b_n, lever_cam)
         S = skew(lever_n)
         if states.att_cov_n is not None:
             att_cov = states.att_cov_n[inside]

@@ -18,7 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-G0 = 9.80665  # m/s^2 per g, for mg conversions
+from georef.frames.earth import STANDARD_GRAVITY
+
+G0 = STANDARD_GRAVITY  # m/s^2 per g, for mg conversions
 DEG_PER_HOUR = math.pi / 180.0 / 3600.0  # rad/s per deg/h
 
 

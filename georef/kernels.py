@@ -103,6 +103,7 @@ KERNELS: dict[str, KernelSpec] = {
             args=(F1, F3, F3, F3, F2, B1, B1, F1, I1, F2, F3, F2, I1, I1, I1, F2, F3, I1, F2, BOOL),
             returns=(F2, F2, F2)),
          "corrected": KernelFunction(args=(F1, F1), returns=(F1,)),
+         "two_sample_corrections": KernelFunction(args=(F2, F2), returns=(F2, F2)),
          "finish_rows": KernelFunction(
             args=(F1, F2, I1, F2, F2, F3, F3),
             returns=(B1, F2, F2, F3, F2, F2, F2))}),

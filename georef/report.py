@@ -34,7 +34,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.ticker import FuncFormatter, MaxNLocator, MultipleLocator  # noqa: E402
 
-from georef.frames import C_e_n, wrap_360, wrap_pi  # noqa: E402
+from georef.frames import STANDARD_GRAVITY, C_e_n, wrap_360, wrap_pi  # noqa: E402
 from georef.io.atomic import atomic_write  # noqa: E402
 
 if TYPE_CHECKING:
@@ -444,7 +444,7 @@ def _biases(result: ProcessResult) -> str | None:
     fig, axes = plt.subplots(2, 1, figsize=(11, 5.5), sharex=True)
     for k, axis in enumerate("xyz"):
         axes[0].plot(t, np.degrees(info["gyro_bias"][v, k]) * 3600.0, color=_COLOURS[k], label=axis)
-        axes[1].plot(t, info["accel_bias"][v, k] / 9.80665 * 1000.0, color=_COLOURS[k], label=axis)
+        axes[1].plot(t, info["accel_bias"][v, k] / STANDARD_GRAVITY * 1000.0, color=_COLOURS[k], label=axis)
     axes[0].set_ylabel("gyro bias [deg/h]")
     axes[1].set_ylabel("accelerometer bias [mg]")
     axes[0].legend(fontsize=8, ncol=3, loc="upper right")

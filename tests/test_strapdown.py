@@ -132,3 +132,37 @@ def test_error_dynamics_match_finite_differences():
         big = scale > 1e-2 * scale.max()
         np.testing.assert_allclose(measured[big] / scales[big], predicted[big] / scales[big],
                                    rtol=0.05, atol=2e-3 * scale.max(), err_msg=f"column {k}")
+
+
+def test_two_sample_corrections_are_savages_and_shared_with_the_preintegration():
+    """Coning ``(1/12) dθ_{k-1} x dθ_k`` and rotation + sculling ``½ dθ_k x dv_k + (1/12)(dθ_{k-1} x dv_k +
+    dv_{k-1} x dθ_k)`` (Savage 1998, parts 1 and 2), written here with numpy's cross product; the strapdown's
+    in-place form adds them to the increments; the graph's compensated rates are the trapezoid rates plus the same
+    corrections over dt, through the compiled ``ins`` kernel (ahead of time when built)."""
+    from georef.fusion.increments import compensated_rates
+    from georef.fusion.strapdown import add_two_sample_corrections, two_sample_corrections
+
+    rng = np.random.default_rng(4)
+    n = 200
+    time = np.cumsum(rng.uniform(0.004, 0.006, n + 1))
+    gyro = rng.normal(0.0, 0.5, (n + 1, 3))
+    accel = rng.normal(0.0, 3.0, (n + 1, 3)) + [0.0, 0.0, -9.8]
+    dt = np.diff(time)[:, None]
+    dtheta = 0.5 * (gyro[:-1] + gyro[1:]) * dt
+    dvel = 0.5 * (accel[:-1] + accel[1:]) * dt
+    prev_theta = np.concatenate([dtheta[:1], dtheta[:-1]])
+    prev_vel = np.concatenate([dvel[:1], dvel[:-1]])
+    coning = np.cross(prev_theta, dtheta) / 12.0
+    sculling = 0.5 * np.cross(dtheta, dvel) + (np.cross(prev_theta, dvel) + np.cross(prev_vel, dtheta)) / 12.0
+    d_phi, d_vel = two_sample_corrections(dtheta, dvel)
+    np.testing.assert_allclose(d_phi, coning, rtol=0, atol=1e-17)
+    np.testing.assert_allclose(d_vel, sculling, rtol=0, atol=1e-16)
+    for k in (0, 1, 57):
+        phi, dv_b = dtheta[k].copy(), dvel[k].copy()
+        add_two_sample_corrections(dtheta[k], dvel[k], prev_theta[k], prev_vel[k], phi, dv_b)
+        np.testing.assert_allclose(phi, dtheta[k] + coning[k], rtol=0, atol=1e-17)
+        np.testing.assert_allclose(dv_b, dvel[k] + sculling[k], rtol=0, atol=1e-16)
+    zero = np.zeros((n + 1, 3))
+    accel_rate, gyro_rate = compensated_rates(time, gyro, accel, zero, zero)
+    np.testing.assert_allclose(accel_rate, 0.5 * (accel[:-1] + accel[1:]) + sculling / dt, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(gyro_rate, 0.5 * (gyro[:-1] + gyro[1:]) + coning / dt, rtol=0, atol=1e-14)

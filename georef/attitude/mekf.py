@@ -19,12 +19,19 @@ import numpy as np
 from numba import njit
 
 from georef.attitude.tilt import accel_tilt
-from georef.frames import dcm_to_quat, euler_to_dcm
+from georef.frames import STANDARD_GRAVITY, dcm_to_quat, euler_to_dcm
 from georef.frames import quat_to_dcm as quats_to_dcm
-from georef.frames.kernels import quat_to_dcm
+from georef.frames.kernels import (
+    add_skew,
+    quat_from_rotvec_into,
+    quat_mul_into,
+    quat_normalise,
+    quat_to_dcm,
+)
 from georef.kernels import load as load_kernel
 
-GRAVITY = 9.81
+#: the specific-force magnitude [m/s^2] an unaccelerated IMU reads, against which the accelerometer gate is set
+GRAVITY = STANDARD_GRAVITY
 DOWN = np.array([0.0, 0.0, 1.0])
 
 
@@ -42,21 +49,32 @@ def triad(accel: np.ndarray, mag: np.ndarray, mag_reference: np.ndarray) -> np.n
 
 
 @njit(cache=True)
+def _measurement_into(C: np.ndarray, reference: np.ndarray, v: np.ndarray, H: np.ndarray) -> None:
+    """The vector measurement at attitude ``C`` (= C_b_n): its prediction ``v = Cᵀ r`` (3,) of the NED
+    reference ``r`` and the attitude block ``H = [v x]`` (3, 3) of its Jacobian (the bias block is zero)."""
+    for i in range(3):
+        v[i] = C[0, i] * reference[0] + C[1, i] * reference[1] + C[2, i] * reference[2]
+    H[:, :] = 0.0
+    add_skew(v, H, 0, 0, 1.0)
+
+
+@njit(cache=True)
 def vector_measurement(q: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """Predicted body-frame unit vector ``Ĉᵀ r`` of a NED reference ``r``."""
     C = np.empty((3, 3))
     quat_to_dcm(q, C)
-    return C.T @ reference
+    v = np.empty(3)
+    _measurement_into(C, reference, v, np.empty((3, 3)))
+    return v
 
 
 @njit(cache=True)
 def vector_jacobian(q: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """d(Cᵀ r)/d(δθ, δb) = [[(Ĉᵀ r) x], 0] (3 x 6)."""
-    v = vector_measurement(q, reference)
+    """d(Cᵀ r)/d(δθ, δb) = [[(Ĉᵀ r) x], 0] (3 x 6), as :func:`_update` builds it."""
+    C = np.empty((3, 3))
+    quat_to_dcm(q, C)
     H = np.zeros((3, 6))
-    H[0, 1], H[0, 2] = -v[2], v[1]
-    H[1, 0], H[1, 2] = v[2], -v[0]
-    H[2, 0], H[2, 1] = -v[1], v[0]
+    _measurement_into(C, reference, np.empty(3), H[:, :3])
     return H
 
 
@@ -72,17 +90,13 @@ def _inv3(S: np.ndarray, out: np.ndarray) -> None:
 
 
 @njit(cache=True)
-def _update(q, b, P, y, reference, variance, C, H, S, S_inv, K, PHt, dq):
-    """One vector-measurement update in place, with preallocated work arrays (no allocation per step)."""
+def _update(q, b, P, y, reference, variance, C, H, S, S_inv, K, PHt, v, dq, work):
+    """One vector-measurement update in place, with preallocated work arrays (no allocation per step): ``v`` (3,)
+    holds the prediction, then the attitude correction; ``dq``, ``work`` (4,) the quaternion product."""
     quat_to_dcm(q, C)
-    v0 = C[0, 0] * reference[0] + C[1, 0] * reference[1] + C[2, 0] * reference[2]
-    v1 = C[0, 1] * reference[0] + C[1, 1] * reference[1] + C[2, 1] * reference[2]
-    v2 = C[0, 2] * reference[0] + C[1, 2] * reference[1] + C[2, 2] * reference[2]
-    z0, z1, z2 = y[0] - v0, y[1] - v1, y[2] - v2
-    # H = [[v x], 0]: only the first three columns are non-zero
-    H[0, 0], H[0, 1], H[0, 2] = 0.0, -v2, v1
-    H[1, 0], H[1, 1], H[1, 2] = v2, 0.0, -v0
-    H[2, 0], H[2, 1], H[2, 2] = -v1, v0, 0.0
+    # H = [[v x], 0]: only the first three columns are non-zero, held in H (3, 3)
+    _measurement_into(C, reference, v, H)
+    z0, z1, z2 = y[0] - v[0], y[1] - v[1], y[2] - v[2]
     for r in range(6):
         for c in range(3):
             PHt[r, c] = P[r, 0] * H[c, 0] + P[r, 1] * H[c, 1] + P[r, 2] * H[c, 2]
@@ -100,28 +114,19 @@ def _update(q, b, P, y, reference, variance, C, H, S, S_inv, K, PHt, dq):
             value = P[r, c] - (K[r, 0] * PHt[c, 0] + K[r, 1] * PHt[c, 1] + K[r, 2] * PHt[c, 2])
             P[r, c] = value
             P[c, r] = value
-    dx0 = K[0, 0] * z0 + K[0, 1] * z1 + K[0, 2] * z2
-    dx1 = K[1, 0] * z0 + K[1, 1] * z1 + K[1, 2] * z2
-    dx2 = K[2, 0] * z0 + K[2, 1] * z1 + K[2, 2] * z2
     for i in range(3):
+        v[i] = K[i, 0] * z0 + K[i, 1] * z1 + K[i, 2] * z2  # the attitude correction δθ
         b[i] += K[3 + i, 0] * z0 + K[3 + i, 1] * z1 + K[3 + i, 2] * z2
-    _right_multiply(q, dx0, dx1, dx2, dq)
+    _right_multiply(q, v, dq, work)
 
 
-@njit(cache=True, inline="always")
-def _right_multiply(q: np.ndarray, v0: float, v1: float, v2: float, out: np.ndarray) -> None:
-    """q ← normalise(q ⊗ q(v)) for a rotation vector v, in place (Hamilton product written out)."""
-    angle = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-    w = math.cos(0.5 * angle)
-    f = math.sin(0.5 * angle) / angle if angle > 1e-8 else 0.5 - angle * angle / 48.0
-    x, y, z = f * v0, f * v1, f * v2
-    out[0] = q[0] * w - q[1] * x - q[2] * y - q[3] * z
-    out[1] = q[0] * x + q[1] * w + q[2] * z - q[3] * y
-    out[2] = q[0] * y - q[1] * z + q[2] * w + q[3] * x
-    out[3] = q[0] * z + q[1] * y - q[2] * x + q[3] * w
-    norm = math.sqrt(out[0] ** 2 + out[1] ** 2 + out[2] ** 2 + out[3] ** 2)
-    for i in range(4):
-        q[i] = out[i] / norm
+@njit(cache=True)
+def _right_multiply(q: np.ndarray, rotvec: np.ndarray, dq: np.ndarray, work: np.ndarray) -> None:
+    """q ← normalise(q ⊗ q(rotvec)) for a body rotation vector [rad] (3,), in place; ``dq``, ``work`` (4,)."""
+    quat_from_rotvec_into(rotvec, dq)
+    quat_mul_into(q, dq, work)
+    quat_normalise(work)
+    q[:] = work
 
 
 @njit(cache=True)
@@ -151,19 +156,18 @@ def mekf(t, gyro, accel, mag, mag_reference, q0, b0, P0, gyro_noise, bias_walk, 
     S_inv = np.empty((3, 3))
     K = np.empty((6, 3))
     PHt = np.empty((6, 3))
+    v = np.empty(3)
+    step = np.empty(3)
     dq = np.empty(4)
-    step_q = np.empty(4)
+    work = np.empty(4)
     for k in range(n):
         if k > 0:
             dt = t[k] - t[k - 1]
-            s0 = (0.5 * (gyro[k, 0] + gyro[k - 1, 0]) - b[0]) * dt
-            s1 = (0.5 * (gyro[k, 1] + gyro[k - 1, 1]) - b[1]) * dt
-            s2 = (0.5 * (gyro[k, 2] + gyro[k - 1, 2]) - b[2]) * dt
+            for i in range(3):
+                step[i] = (0.5 * (gyro[k, i] + gyro[k - 1, i]) - b[i]) * dt
             # R(step); F = [[R^T, -dt I], [0, I]]
-            angle = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
-            f = math.sin(0.5 * angle) / angle if angle > 1e-8 else 0.5 - angle * angle / 48.0
-            step_q[0], step_q[1], step_q[2], step_q[3] = math.cos(0.5 * angle), f * s0, f * s1, f * s2
-            quat_to_dcm(step_q, R)
+            quat_from_rotvec_into(step, dq)
+            quat_to_dcm(dq, R)
             # P_aa' = R^T P_aa R - dt (R^T P_ab + P_ba R) + dt^2 P_bb ; P_ab' = R^T P_ab - dt P_bb
             for i in range(3):
                 for j in range(3):
@@ -184,19 +188,19 @@ def mekf(t, gyro, accel, mag, mag_reference, q0, b0, P0, gyro_noise, bias_walk, 
                     P[i, 3 + j] = C[i, j]
                     P[3 + j, i] = C[i, j]
                 P[3 + i, 3 + i] += bias_walk * bias_walk * dt
-            _right_multiply(q, s0, s1, s2, dq)
+            _right_multiply(q, step, dq, work)
         norm_f = math.sqrt(accel[k, 0] ** 2 + accel[k, 1] ** 2 + accel[k, 2] ** 2)
         rate = math.sqrt(gyro[k, 0] ** 2 + gyro[k, 1] ** 2 + gyro[k, 2] ** 2)
         if abs(norm_f - GRAVITY) < accel_gate and rate < rate_gate:
             for i in range(3):
                 y[i] = -accel[k, i] / norm_f
-            _update(q, b, P, y, DOWN, accel_sigma * accel_sigma, C, H, S, S_inv, K, PHt, dq)
+            _update(q, b, P, y, DOWN, accel_sigma * accel_sigma, C, H, S, S_inv, K, PHt, v, dq, work)
         if use_mag:
             norm_m = math.sqrt(mag[k, 0] ** 2 + mag[k, 1] ** 2 + mag[k, 2] ** 2)
             if norm_m > 0.0:
                 for i in range(3):
                     y[i] = mag[k, i] / norm_m
-                _update(q, b, P, y, mag_reference, mag_sigma * mag_sigma, C, H, S, S_inv, K, PHt, dq)
+                _update(q, b, P, y, mag_reference, mag_sigma * mag_sigma, C, H, S, S_inv, K, PHt, v, dq, work)
         quats[k] = q
         biases[k] = b
         for i in range(6):

@@ -7,10 +7,10 @@ from the body rates, ``roll' = p + (q sin r + r_z cos r) tan p_``, ``pitch' = q 
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
+
+from georef.frames.kernels import euler_rate_matrix
 
 
 def accel_tilt(accel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -25,8 +25,11 @@ def accel_tilt(accel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @njit(cache=True)
 def _euler_rates(roll: float, pitch: float, w: np.ndarray) -> tuple[float, float]:
-    return (w[0] + (w[1] * math.sin(roll) + w[2] * math.cos(roll)) * math.tan(pitch),
-            w[1] * math.cos(roll) - w[2] * math.sin(roll))
+    """Roll and pitch rates [rad/s] of body rates ``w`` [rad/s] at roll, pitch [rad] (the first two rows of
+    :func:`georef.frames.kernels.euler_rate_matrix`)."""
+    E = euler_rate_matrix(roll, pitch)
+    return (E[0, 0] * w[0] + E[0, 1] * w[1] + E[0, 2] * w[2],
+            E[1, 0] * w[0] + E[1, 1] * w[1] + E[1, 2] * w[2])
 
 
 @njit(cache=True)

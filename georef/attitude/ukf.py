@@ -16,21 +16,10 @@ from numba import njit
 
 from georef.attitude.mekf import DOWN, GRAVITY, initial_state
 from georef.frames import quat_to_dcm as quats_to_dcm
-from georef.frames.kernels import quat_from_rotvec, quat_mul, quat_normalise, quat_to_dcm
+from georef.frames.kernels import quat_from_rotvec, quat_mul, quat_normalise, quat_to_dcm, quat_to_rotvec
 from georef.kernels import load as load_kernel
 
 L = 6
-
-
-@njit(cache=True)
-def _rotvec(q: np.ndarray) -> np.ndarray:
-    """Rotation vector of a unit quaternion (shorter way round)."""
-    sign = 1.0 if q[0] >= 0.0 else -1.0
-    x, y, z = sign * q[1], sign * q[2], sign * q[3]
-    norm = math.sqrt(x * x + y * y + z * z)
-    angle = 2.0 * math.atan2(norm, sign * q[0])
-    f = angle / norm if norm > 1e-12 else 2.0
-    return np.array([f * x, f * y, f * z])
 
 
 @njit(cache=True)
@@ -76,7 +65,7 @@ def ukf(t, gyro, accel, mag, mag_reference, q0, b0, P0, gyro_noise, bias_walk, a
             new_chi = np.empty((2 * L + 1, L))
             mean = np.zeros(L)
             for s in range(2 * L + 1):
-                new_chi[s, :3] = _rotvec(quat_mul(conj, props[s]))
+                new_chi[s, :3] = quat_to_rotvec(quat_mul(conj, props[s]))
                 new_chi[s, 3:] = chi[s, 3:]
                 mean += wm[s] * new_chi[s]
             P = np.zeros((L, L))

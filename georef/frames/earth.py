@@ -1,4 +1,5 @@
-"""WGS84 Earth model: geodetic <-> ECEF, NED <-> ECEF rotation, radii of curvature, normal gravity.
+"""WGS84 Earth model: geodetic <-> ECEF, NED <-> ECEF rotation, radii of curvature, NED metres <-> latitude and
+longitude increments, normal gravity and its gradient, the Earth's rotation.
 
 All inputs and outputs are SI: latitude and longitude in radians, heights in metres above the
 WGS84 ellipsoid, ECEF coordinates in metres. Every function is vectorised over leading axes.
@@ -24,6 +25,9 @@ OMEGA_IE = 7.292115e-5
 #: Normal gravity at the equator [m/s^2] and Somigliana's constant k [-] (NIMA TR8350.2)
 GAMMA_E = 9.7803253359
 SOMIGLIANA_K = 0.00193185265241
+#: Standard gravity [m/s^2], the unit "g" of datasheets (mg, g); a unit, not a model of the field (3rd CGPM,
+#: 1901). The field is :func:`normal_gravity`.
+STANDARD_GRAVITY = 9.80665
 
 Array = NDArray[np.float64]
 
@@ -35,6 +39,33 @@ def radii_of_curvature(lat: ArrayLike) -> tuple[Array, Array]:
     N = WGS84_A / np.sqrt(w2)
     M = WGS84_A * (1.0 - WGS84_E2) / w2**1.5
     return M, N
+
+
+def gaussian_radius(lat: ArrayLike) -> Array:
+    """Gaussian mean radius of curvature ``sqrt(M N)`` [m] at geodetic latitude ``lat`` [rad]: the radius of the
+    sphere that osculates the ellipsoid there in every direction on average."""
+    M, N = radii_of_curvature(lat)
+    return np.sqrt(M * N)
+
+
+def ned_to_lat_lon(d_north: ArrayLike, d_east: ArrayLike, lat: ArrayLike, height: ArrayLike) -> tuple[Array, Array]:
+    """Latitude and longitude increments [rad] of small north and east displacements [m] (or their rates [rad/s]
+    of velocities [m/s]) at latitude ``lat`` [rad] and ellipsoidal height [m]: ``d_north / (M + h)`` and
+    ``d_east / ((N + h) cos lat)``. The inverse of :func:`lat_lon_to_ned`."""
+    lat = np.asarray(lat, dtype=float)
+    height = np.asarray(height, dtype=float)
+    M, N = radii_of_curvature(lat)
+    return np.asarray(d_north, float) / (M + height), np.asarray(d_east, float) / ((N + height) * np.cos(lat))
+
+
+def lat_lon_to_ned(d_lat: ArrayLike, d_lon: ArrayLike, lat: ArrayLike, height: ArrayLike) -> tuple[Array, Array]:
+    """North and east displacements [m] of small latitude and longitude increments [rad] at latitude ``lat``
+    [rad] and ellipsoidal height [m]: ``d_lat (M + h)`` and ``d_lon (N + h) cos lat``. The inverse of
+    :func:`ned_to_lat_lon`."""
+    lat = np.asarray(lat, dtype=float)
+    height = np.asarray(height, dtype=float)
+    M, N = radii_of_curvature(lat)
+    return np.asarray(d_lat, float) * (M + height), np.asarray(d_lon, float) * (N + height) * np.cos(lat)
 
 
 def geodetic_to_ecef(lat: ArrayLike, lon: ArrayLike, height: ArrayLike) -> Array:
@@ -153,6 +184,17 @@ def normal_gravity(lat: ArrayLike, height: ArrayLike) -> Array:
     return gamma_0 * (
         1.0 - 2.0 / WGS84_A * (1.0 + WGS84_F + m - 2.0 * WGS84_F * sin2) * height + 3.0 * height**2 / WGS84_A**2
     )
+
+
+def normal_gravity_gradient(lat: ArrayLike, height: ArrayLike) -> tuple[Array, Array]:
+    """First-order change of the normal gravity vector in NED [1/s^2] per metre of NED displacement, on the
+    sphere of radius ``R + h`` (``R`` the Gaussian radius, :func:`gaussian_radius`): ``(horizontal, vertical)``
+    with ``d g_n = [-horizontal d_north, -horizontal d_east, vertical d_down]``, ``horizontal = g / (R + h)``
+    (the vertical tilts towards the point of departure) and ``vertical = 2 g / (R + h)`` (gravity grows
+    going down). ``lat`` [rad], ``height`` ellipsoidal [m]."""
+    g = normal_gravity(lat, height)
+    radius = gaussian_radius(lat) + np.asarray(height, dtype=float)
+    return g / radius, 2.0 * g / radius
 
 
 def earth_rate_n(lat: ArrayLike) -> Array:

@@ -1,9 +1,9 @@
 """Compiled single-sample forms of georef's conventions, for numba recursions.
 
-These are the same equations as :mod:`georef.frames.earth` and :mod:`georef.frames.rotations` (which are
-vectorised over arrays for module boundaries), written per sample so compiled loops can call them.
-``tests/test_frames_kernels.py`` checks that both forms agree to rounding error; nothing outside
-``georef/frames`` writes these formulas again.
+These are the same equations as :mod:`georef.frames.earth`, :mod:`georef.frames.rotations` and
+:mod:`georef.frames.mounting` (which are vectorised over arrays for module boundaries), written per sample so
+compiled loops can call them. ``tests/test_frames_kernels.py`` checks that both forms agree to rounding error;
+nothing outside ``georef/frames`` writes these formulas again.
 """
 
 from __future__ import annotations
@@ -36,6 +36,32 @@ def gravity(lat: float, height: float) -> float:
 
 
 @njit(cache=True)
+def gravity_gradient(lat: float, height: float) -> tuple[float, float]:
+    """Horizontal and vertical gradient of normal gravity [1/s^2]: ``g / (R + h)`` and ``2 g / (R + h)`` with the
+    Gaussian radius ``R = sqrt(M N)`` (see :func:`georef.frames.earth.normal_gravity_gradient`)."""
+    M, N = radii(lat)
+    g = gravity(lat, height)
+    radius = math.sqrt(M * N) + height
+    return g / radius, 2.0 * g / radius
+
+
+@njit(cache=True)
+def ned_to_lat_lon(d_north: float, d_east: float, lat: float, height: float) -> tuple[float, float]:
+    """Latitude and longitude increments [rad] of north and east displacements [m] at ``lat`` [rad], ``height``
+    [m]: ``d_north / (M + h)``, ``d_east / ((N + h) cos lat)``."""
+    M, N = radii(lat)
+    return d_north / (M + height), d_east / ((N + height) * math.cos(lat))
+
+
+@njit(cache=True)
+def lat_lon_to_ned(d_lat: float, d_lon: float, lat: float, height: float) -> tuple[float, float]:
+    """North and east displacements [m] of latitude and longitude increments [rad] at ``lat`` [rad], ``height``
+    [m]: ``d_lat (M + h)``, ``d_lon (N + h) cos lat``."""
+    M, N = radii(lat)
+    return d_lat * (M + height), d_lon * (N + height) * math.cos(lat)
+
+
+@njit(cache=True)
 def earth_rate(lat: float, out: np.ndarray) -> None:
     """omega_ie_n [rad/s] into ``out`` (3,)."""
     out[0] = OMEGA_IE * math.cos(lat)
@@ -53,27 +79,50 @@ def transport_rate(lat: float, height: float, v: np.ndarray, out: np.ndarray) ->
 
 
 @njit(cache=True)
-def quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Hamilton product p ⊗ q of scalar-first quaternions."""
-    r = np.empty(4)
+def quat_mul_into(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> None:
+    """Hamilton product p ⊗ q of scalar-first quaternions into ``r`` (4,), which must not be ``p`` or ``q``."""
     r[0] = p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3]
     r[1] = p[0] * q[1] + p[1] * q[0] + p[2] * q[3] - p[3] * q[2]
     r[2] = p[0] * q[2] - p[1] * q[3] + p[2] * q[0] + p[3] * q[1]
     r[3] = p[0] * q[3] + p[1] * q[2] - p[2] * q[1] + p[3] * q[0]
+
+
+@njit(cache=True)
+def quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton product p ⊗ q of scalar-first quaternions."""
+    r = np.empty(4)
+    quat_mul_into(p, q, r)
     return r
 
 
 @njit(cache=True)
-def quat_from_rotvec(v: np.ndarray) -> np.ndarray:
-    """Rotation vector [rad] to a scalar-first quaternion ``[cos(a/2), sin(a/2) u]``."""
+def quat_from_rotvec_into(v: np.ndarray, q: np.ndarray) -> None:
+    """Rotation vector [rad] (3,) to a scalar-first quaternion ``[cos(a/2), sin(a/2) u]`` into ``q`` (4,)."""
     a = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-    q = np.empty(4)
     q[0] = math.cos(0.5 * a)
     f = math.sin(0.5 * a) / a if a > 1e-8 else 0.5 - a * a / 48.0
     q[1] = f * v[0]
     q[2] = f * v[1]
     q[3] = f * v[2]
+
+
+@njit(cache=True)
+def quat_from_rotvec(v: np.ndarray) -> np.ndarray:
+    """Rotation vector [rad] to a scalar-first quaternion ``[cos(a/2), sin(a/2) u]``."""
+    q = np.empty(4)
+    quat_from_rotvec_into(v, q)
     return q
+
+
+@njit(cache=True)
+def quat_to_rotvec(q: np.ndarray) -> np.ndarray:
+    """Rotation vector [rad] (3,) of a unit scalar-first quaternion, angle in [0, pi] (the shorter way round)."""
+    sign = 1.0 if q[0] >= 0.0 else -1.0
+    x, y, z = sign * q[1], sign * q[2], sign * q[3]
+    norm = math.sqrt(x * x + y * y + z * z)
+    angle = 2.0 * math.atan2(norm, sign * q[0])
+    f = angle / norm if norm > 1e-12 else 2.0
+    return np.array([f * x, f * y, f * z])
 
 
 @njit(cache=True)
@@ -93,6 +142,7 @@ def quat_to_dcm(q: np.ndarray, C: np.ndarray) -> None:
 
 @njit(cache=True)
 def quat_normalise(q: np.ndarray) -> None:
+    """Scale the quaternion ``q`` (4,) to unit norm in place."""
     n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     for i in range(4):
         q[i] /= n
@@ -114,13 +164,18 @@ def dcm_to_euler(C: np.ndarray) -> tuple[float, float, float]:
 
 
 @njit(cache=True)
+def euler_rate_matrix(roll: float, pitch: float) -> np.ndarray:
+    """``E`` (3, 3): ZYX Euler-angle rates ``= E w_b`` of body rates ``w_b`` [rad/s] at roll, pitch [rad]."""
+    sr, cr = math.sin(roll), math.cos(roll)
+    tp, cp = math.tan(pitch), math.cos(pitch)
+    return np.array([[1.0, sr * tp, cr * tp], [0.0, cr, -sr], [0.0, sr / cp, cr / cp]])
+
+
+@njit(cache=True)
 def euler_error_jacobian(C: np.ndarray) -> np.ndarray:
     """d(roll, pitch, yaw)/d(phi) = E C^T for a small NED rotation phi, C = C_b_n (3x3)."""
     roll, pitch, _ = dcm_to_euler(C)
-    sr, cr = math.sin(roll), math.cos(roll)
-    tp, cp = math.tan(pitch), math.cos(pitch)
-    E = np.array([[1.0, sr * tp, cr * tp], [0.0, cr, -sr], [0.0, sr / cp, cr / cp]])
-    return E @ C.T
+    return euler_rate_matrix(roll, pitch) @ C.T
 
 
 @njit(cache=True)
@@ -132,6 +187,30 @@ def add_skew(v: np.ndarray, M: np.ndarray, r0: int, c0: int, sign: float) -> Non
     M[r0 + 1, c0 + 2] -= sign * v[0]
     M[r0 + 2, c0 + 0] -= sign * v[1]
     M[r0 + 2, c0 + 1] += sign * v[0]
+
+
+@njit(cache=True)
+def skew_into(v: np.ndarray, out: np.ndarray) -> None:
+    """``out = [v x]`` (3, 3), the cross-product matrix of the 3-vector ``v``: ``[v x] u = v x u``."""
+    out[:, :] = 0.0
+    add_skew(v, out, 0, 0, 1.0)
+
+
+@njit(cache=True)
+def skew_matrix(v: np.ndarray) -> np.ndarray:
+    """``[v x]`` (3, 3) of a 3-vector ``v``: ``[v x] u = v x u``."""
+    S = np.empty((3, 3))
+    skew_into(v, S)
+    return S
+
+
+@njit(cache=True)
+def lever_arm_into(C: np.ndarray, lever: np.ndarray, out: np.ndarray) -> None:
+    """Offset ``C lever`` [m] (3,) of a body-frame lever arm [m] in the frame ``C`` (3, 3) rotates the body into
+    (NED, the initial body frame, a tangent plane), into ``out``; the compiled twin of
+    :func:`georef.frames.mounting.lever_arm_offset`."""
+    for i in range(3):
+        out[i] = C[i, 0] * lever[0] + C[i, 1] * lever[1] + C[i, 2] * lever[2]
 
 
 @njit(cache=True)

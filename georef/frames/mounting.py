@@ -1,7 +1,9 @@
 """Lever arms and boresight: moving from the IMU to the GNSS antenna or the camera.
 
-* Lever arms are body-frame vectors [m] from the IMU centre to the named point:
-  ``r_point_e = r_imu_e + C_n_e @ C_b_n @ lever_arm_b``.
+* Lever arms are body-frame vectors [m] from the IMU centre to the named point. Their offset in any frame x
+  the body attitude ``C_b_x`` rotates into (NED, a tangent plane, the initial body frame) is
+  ``C_b_x @ lever_arm_b`` (:func:`lever_arm_offset`; compiled twin :func:`georef.frames.kernels.lever_arm_into`),
+  and in ECEF ``r_point_e = r_imu_e + C_n_e @ C_b_n @ lever_arm_b`` (:func:`lever_arm_ecef`).
 * The boresight ``(roll_b, pitch_b, yaw_b)`` [rad] gives ``C_c_b = Rz(yaw_b) Ry(pitch_b) Rx(roll_b)``, and the
   camera attitude is ``C_c_n = C_b_n @ C_c_b``.
 """
@@ -28,12 +30,18 @@ def camera_attitude(C_b_n: ArrayLike, boresight_rad: ArrayLike) -> Array:
     return np.asarray(C_b_n, dtype=float) @ boresight_dcm(boresight_rad)
 
 
+def lever_arm_offset(C_b_x: ArrayLike, lever_arm_b: ArrayLike) -> Array:
+    """Offset [m, frame x] (..., 3) of a body-frame lever arm [m] (3,): ``C_b_x @ lever_arm_b``, with ``C_b_x``
+    (..., 3, 3) the attitude of the body in frame x (``C_b_n`` for a NED offset)."""
+    return np.asarray(C_b_x, dtype=float) @ np.asarray(lever_arm_b, dtype=float)
+
+
 def lever_arm_ecef(lat: ArrayLike, lon: ArrayLike, C_b_n: ArrayLike, lever_arm_b: ArrayLike) -> Array:
     """ECEF offset [m] (..., 3) of a body-frame lever arm [m]: ``C_n_e @ C_b_n @ lever_arm_b``.
 
     ``lat``, ``lon`` [rad] give the NED frame in which ``C_b_n`` is expressed.
     """
-    lever_n = np.asarray(C_b_n, dtype=float) @ np.asarray(lever_arm_b, dtype=float)
+    lever_n = lever_arm_offset(C_b_n, lever_arm_b)
     return np.einsum("...ij,...j->...i", C_n_e(lat, lon), lever_n)
 
 

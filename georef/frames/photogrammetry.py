@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from georef.frames.earth import radii_of_curvature
+from georef.frames.earth import gaussian_radius
 
 Array = NDArray[np.float64]
 
@@ -82,8 +82,7 @@ def grid_to_camera_local(d_easting: ArrayLike, d_northing: ArrayLike, d_height: 
     local frame: horizontal offsets divided by the projection's scale k and raised from the ellipsoid to the
     point's height ``(R + h)/R``, height lowered by the Earth's curvature ``d² / 2R`` (R the Gaussian radius
     at the camera)."""
-    M, N = radii_of_curvature(lat_rad)
-    radius = np.sqrt(M * N)
+    radius = gaussian_radius(lat_rad)
     factor = (radius + np.asarray(point_height, float)) / (radius * np.asarray(scale, float))
     de = np.asarray(d_easting, float) * factor
     dn = np.asarray(d_northing, float) * factor

@@ -205,19 +205,25 @@ def slerp_euler(
     return dcm_to_euler(attitude_at(times, roll, pitch, yaw, new_times))
 
 
+def euler_rate_matrix(roll: ArrayLike, pitch: ArrayLike) -> Array:
+    """``E`` (..., 3, 3) mapping body rates [rad/s] to ZYX Euler-angle rates: ``(roll', pitch', yaw') = E w_b``,
+    ``E = [[1, sin r tan p, cos r tan p], [0, cos r, -sin r], [0, sin r / cos p, cos r / cos p]]`` (roll, pitch
+    [rad]; singular at |pitch| = 90 deg)."""
+    roll, pitch = np.broadcast_arrays(np.asarray(roll, float), np.asarray(pitch, float))
+    sr, cr = np.sin(roll), np.cos(roll)
+    tp, cp = np.tan(pitch), np.cos(pitch)
+    zero, one = np.zeros_like(roll), np.ones_like(roll)
+    return np.stack([np.stack([one, sr * tp, cr * tp], -1), np.stack([zero, cr, -sr], -1),
+                     np.stack([zero, sr / cp, cr / cp], -1)], -2)
+
+
 def euler_error_jacobian(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> Array:
     """d(roll, pitch, yaw) / d(phi) (..., 3, 3) for a small NED rotation ``phi`` [rad]: ``C' = exp([phi x]) C``.
 
     A NED rotation is a body rotation ``C^T phi``, and body rates map to ZYX Euler rates through
-    ``E = [[1, sin r tan p, cos r tan p], [0, cos r, -sin r], [0, sin r / cos p, cos r / cos p]]``,
-    so the Jacobian is ``E C^T`` (``C = C_b_n`` of the given angles).
+    :func:`euler_rate_matrix` ``E``, so the Jacobian is ``E C^T`` (``C = C_b_n`` of the given angles).
     """
     roll, pitch, yaw = np.broadcast_arrays(np.asarray(roll, float), np.asarray(pitch, float),
                                            np.asarray(yaw, float))
-    sr, cr = np.sin(roll), np.cos(roll)
-    tp, cp = np.tan(pitch), np.cos(pitch)
-    zero, one = np.zeros_like(roll), np.ones_like(roll)
-    E = np.stack([np.stack([one, sr * tp, cr * tp], -1), np.stack([zero, cr, -sr], -1),
-                  np.stack([zero, sr / cp, cr / cp], -1)], -2)
-    return E @ np.swapaxes(euler_to_dcm(roll, pitch, yaw), -1, -2)
+    return euler_rate_matrix(roll, pitch) @ np.swapaxes(euler_to_dcm(roll, pitch, yaw), -1, -2)
 

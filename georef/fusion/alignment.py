@@ -36,7 +36,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from georef.frames import C_e_n, C_n_e, earth_rate_n, ecef_to_geodetic, geodetic_to_ecef, normal_gravity, skew
+from georef.frames import (
+    C_e_n,
+    C_n_e,
+    earth_rate_n,
+    ecef_to_geodetic,
+    euler_to_dcm,
+    geodetic_to_ecef,
+    normal_gravity,
+    normal_gravity_gradient,
+    skew,
+)
+from georef.frames.mounting import lever_arm_offset
 from georef.frames.rotations import rotvec_to_dcm
 from georef.kernels import load as load_kernel
 
@@ -119,16 +130,17 @@ def _fix_velocity(time: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 def _known_terms(fixes: _Fixes, t0: float, lat0: float, h0: float, omega_ie: np.ndarray) -> np.ndarray:
     """``∫∫ g - c`` at each fix [m]: normal gravity at the fix heights, Coriolis ``-2 ω_ie x v`` and the tilt of
-    gravity ``-(g/R) r_h`` over the tangent plane, integrated twice from t0 on a 0.1 s grid."""
+    gravity ``-(g/(R+h)) r_h`` over the tangent plane (:func:`georef.frames.normal_gravity_gradient`), integrated
+    twice from t0 on a 0.1 s grid."""
     t_end = fixes.time[-1]
     grid = np.arange(t0, t_end + 0.1, 0.1)
     v = np.stack([np.interp(grid, fixes.time, fixes.v[:, k]) for k in range(3)], -1)
     r = np.stack([np.interp(grid, fixes.time, fixes.r[:, k]) for k in range(3)], -1)
     g = normal_gravity(lat0, h0 - r[:, 2])
-    R = 6.371e6
+    tilt, _ = normal_gravity_gradient(lat0, h0 - r[:, 2])
     acc = -2.0 * np.cross(omega_ie, v)
-    acc[:, 0] -= g * r[:, 0] / R
-    acc[:, 1] -= g * r[:, 1] / R
+    acc[:, 0] -= tilt * r[:, 0]
+    acc[:, 1] -= tilt * r[:, 1]
     acc[:, 2] += g
     dt = np.diff(grid)[:, None]
     vel = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (acc[1:] + acc[:-1]) * dt, axis=0)])
@@ -209,7 +221,7 @@ def _static_start(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, row0: int,
     rows = slice(row0, int(np.searchsorted(t, t_end)))
     f = accel[rows].mean(axis=0)
     down_b = -f / np.linalg.norm(f)
-    omega_vertical = -np.sin(lat0) * 7.292115e-5  # Earth rate along down, NED
+    omega_vertical = earth_rate_n(lat0)[2]  # Earth rate along down, NED
     return gyro[rows].mean(axis=0) - omega_vertical * down_b, float(length)
 
 
@@ -362,9 +374,8 @@ def _fit(win: _Window, bias_g: np.ndarray, bias_a: np.ndarray, heading_turn: flo
     """Linear attitude (turned by ``heading_turn`` [rad] about down), then Gauss-Newton."""
     C0, _ = win.linear_attitude(win.integrals(bias_g, bias_a))
     if heading_turn:
-        c, s = np.cos(heading_turn), np.sin(heading_turn)
-        C0 = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ C0
-    r0 = win.fixes.r[0] - C0 @ win.lever
+        C0 = euler_to_dcm(0.0, 0.0, heading_turn) @ C0
+    r0 = win.fixes.r[0] - lever_arm_offset(C0, win.lever)
     return _gauss_newton(win, C0, r0, win.fixes.v[0], bias_g, bias_a, prior_sigma=prior_sigma)
 
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from georef.frames.kernels import so3_exp_into, so3_right_jacobian_into
+from georef.frames.kernels import lever_arm_into, skew_into, so3_exp_into, so3_right_jacobian_into
 
 
 @njit(cache=True)
@@ -99,9 +99,7 @@ def preintegrate(t, gyro, accel, row0, bias_g, bias_a, lever, sample_t):
             for i in range(3):
                 inc[i] = C_mid[i, 0] * dv[0] + C_mid[i, 1] * dv[1] + C_mid[i, 2] * dv[2]
             # d inc / d b_g = -C_mid [dv x] J
-            W[0, 0], W[0, 1], W[0, 2] = 0.0, -dv[2], dv[1]
-            W[1, 0], W[1, 1], W[1, 2] = dv[2], 0.0, -dv[0]
-            W[2, 0], W[2, 1], W[2, 2] = -dv[1], dv[0], 0.0
+            skew_into(dv, W)
             _matmul3(W, J, nC)
             _matmul3(C_mid, nC, d_inc_g)
             tau_mid = tau0 + 0.5 * dt
@@ -136,12 +134,9 @@ def preintegrate(t, gyro, accel, row0, bias_g, bias_a, lever, sample_t):
                     out_da_a[s, i, j] = D[1, i, j] - C_mid[i, j] * dt
                     out_J[s, i, j] = nJ[i, j]
                     out_C[s, i, j] = nC[i, j]
-            for i in range(3):
-                out_lam[s, i] = nC[i, 0] * lever[0] + nC[i, 1] * lever[1] + nC[i, 2] * lever[2]
+            lever_arm_into(nC, lever, out_lam[s])
             # dλ/db_g = -ΔC [l x] J
-            W[0, 0], W[0, 1], W[0, 2] = 0.0, -lever[2], lever[1]
-            W[1, 0], W[1, 1], W[1, 2] = lever[2], 0.0, -lever[0]
-            W[2, 0], W[2, 1], W[2, 2] = -lever[1], lever[0], 0.0
+            skew_into(lever, W)
             _matmul3(W, nJ, Jr)
             _matmul3(nC, Jr, out_dl_g[s])
             for i in range(3):

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from georef.config import ProcessingConfig
-from georef.frames import C_n_e, ecef_to_geodetic, geodetic_to_ecef, wrap_pi
+from georef.frames import C_e_n, C_n_e, ecef_to_geodetic, euler_to_dcm, geodetic_to_ecef, wrap_pi
 from georef.frames.mounting import lever_arm_ecef
 from georef.frames.rotations import attitude_at
 from georef.fusion.solution import GnssUse, NavSolution, ecef_variances_to_ned, ned_variances_to_ecef
@@ -53,8 +53,7 @@ def solve_axis(log: PosLog, cfg: ProcessingConfig) -> NavSolution:
     # Level-frame acceleration -> NED (rotate by the offset) -> ECEF at the current position.
     lat_row = np.radians(np.interp(t, gnss.time, gnss.lat_deg))
     lon_row = np.radians(np.interp(t, gnss.time, gnss.lon_deg))
-    c, s = np.cos(offset), np.sin(offset)
-    a_n = np.stack([c * iacc_u[:, 0] - s * iacc_u[:, 1], s * iacc_u[:, 0] + c * iacc_u[:, 1], iacc_u[:, 2]], -1)
+    a_n = np.einsum("nij,nj->ni", euler_to_dcm(0.0, 0.0, offset), iacc_u)
     a_e = np.einsum("nij,nj->ni", C_n_e(lat_row, lon_row), a_n)
 
     # GNSS antenna fixes -> IMU positions through the lever arm, at the fix times.
@@ -85,11 +84,17 @@ def solve_axis(log: PosLog, cfg: ProcessingConfig) -> NavSolution:
     full_status = np.full(len(gnss), -1, dtype=int)
     full_innov = np.full((len(gnss), 3), np.nan)
     full_var = np.full((len(gnss), 3), np.nan)
-    full_status[in_span], full_innov[in_span], full_var[in_span] = status, innov, innov_var
+    full_nis = np.full(len(gnss), np.nan)
+    full_status[in_span] = status
+    # the filters' innovations are measured minus predicted along ECEF axes: reported as GnssUse has them,
+    # predicted minus measured in NED, with their chi-square over the filters' own (ECEF) variances
+    full_innov[in_span] = np.einsum("nij,nj->ni", C_e_n(lat_f, lon_f), -innov)
+    full_var[in_span] = ecef_variances_to_ned(lat_f, lon_f, innov_var)
+    full_nis[in_span] = np.sum(innov**2 / innov_var, axis=1)
     return NavSolution(
         method="axis", time=t, r_e=pos, v_e=vel, lat=lat, lon=lon, height=height, roll=roll, pitch=pitch,
         yaw=yaw, pos_var_n=pos_var_n, att_sigma=att_sigma, valid=valid,
         gnss=GnssUse(time=gnss.time, status=full_status, innovation=full_innov, innovation_var=full_var,
-                     line=gnss.line),
+                     line=gnss.line, nis=full_nis),
         info={"yaw_offset": yaw_solution, "accel_sigma_n": sigma_acc_n},
     )

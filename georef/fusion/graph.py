@@ -45,7 +45,7 @@ from georef.frames import (
     geodetic_to_ecef,
     normal_gravity,
 )
-from georef.frames.mounting import lever_arm_rotation_jacobian
+from georef.frames.mounting import lever_arm_offset, lever_arm_rotation_jacobian
 from georef.frames.rotations import (
     dcm_to_quat,
     euler_error_jacobian,
@@ -390,7 +390,7 @@ def _antenna_residual(pose: gtsam.Pose3, velocity: np.ndarray, calibration: np.n
     """GNSS residual [m, plane] ``p + R l + v (lag - dt) - z`` of one fix at its keyframe (pose ``R, p``, velocity
     ``v`` [m/s]) with calibration ``(l [m, body], dt [s])``, and the keyframe's rotation ``R``."""
     R = pose.rotation().matrix()
-    return pose.translation() + R @ calibration[:3] + velocity * (lag - calibration[3]) - z, R
+    return pose.translation() + lever_arm_offset(R, calibration[:3]) + velocity * (lag - calibration[3]) - z, R
 
 
 def _gnss_factor(gtsam: ModuleType, key_x: int, key_v: int, z: np.ndarray, lag: float, sigma: np.ndarray,

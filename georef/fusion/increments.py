@@ -15,14 +15,17 @@ trapezoid increments ``dθ_k`` [rad] and ``dv_k`` [m/s]:
 * velocity: ``dv_k + ½ dθ_k × dv_k + (1/12)(dθ_{k-1} × dv_k + dv_{k-1} × dθ_k)`` (rotation and sculling).
 
 :func:`compensated_rates` returns the trapezoid rates plus these corrections divided by ``dt``, so that the
-preintegration of GTSAM integrates the same increments as the EKF + RTS. The corrections are computed with the
-best bias estimate available (the EKF + RTS's, per row); the integrator then removes its own bias estimate from
-the trapezoid part as usual (the corrections' dependence on the bias is second order).
+preintegration of GTSAM integrates the same increments as the EKF + RTS; the corrections are the strapdown's own
+(:func:`georef.fusion.strapdown.two_sample_corrections`, served compiled with the ``ins`` kernel). They are
+computed with the best bias estimate available (the EKF + RTS's, per row); the integrator then removes its own
+bias estimate from the trapezoid part as usual (the corrections' dependence on the bias is second order).
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from georef.kernels import load as load_kernel
 
 
 def compensated_rates(time: np.ndarray, gyro: np.ndarray, accel: np.ndarray, gyro_bias: np.ndarray,
@@ -38,8 +41,5 @@ def compensated_rates(time: np.ndarray, gyro: np.ndarray, accel: np.ndarray, gyr
     accel_mid = 0.5 * (accel[:-1] + accel[1:])
     dtheta = (gyro_mid - np.nan_to_num(gyro_bias[:-1])) * dt
     dvel = (accel_mid - np.nan_to_num(accel_bias[:-1])) * dt
-    dtheta_prev = np.concatenate([dtheta[:1], dtheta[:-1]])
-    dvel_prev = np.concatenate([dvel[:1], dvel[:-1]])
-    dvel_fix = 0.5 * np.cross(dtheta, dvel) + (np.cross(dtheta_prev, dvel) + np.cross(dvel_prev, dtheta)) / 12.0
-    dtheta_fix = np.cross(dtheta_prev, dtheta) / 12.0
+    dtheta_fix, dvel_fix = load_kernel("ins").two_sample_corrections(dtheta, dvel)
     return accel_mid + dvel_fix / dt, gyro_mid + dtheta_fix / dt

@@ -22,12 +22,17 @@ import math
 import numpy as np
 from numba import njit
 
+from georef.frames.earth import OMEGA_IE
 from georef.frames.kernels import (
     add_skew,
+    cross,
     dcm_to_euler,
     earth_rate,
     euler_error_jacobian,
-    gravity,
+    gravity_gradient,
+    lat_lon_to_ned,
+    lever_arm_into,
+    ned_to_lat_lon,
     quat_from_rotvec,
     quat_mul,
     quat_normalise,
@@ -109,7 +114,7 @@ from georef.fusion.ins_layout import (  # noqa: F401  (the kernel's public names
     X_UNIT_YAW,
     X_VEL,
 )
-from georef.fusion.strapdown import increments, mechanise
+from georef.fusion.strapdown import increments, mechanise, two_sample_corrections  # noqa: F401  (exported)
 
 
 @njit(cache=True)
@@ -134,8 +139,8 @@ def continuous_noise(noise: np.ndarray, nx: int, nav_scale: float, bias_scale: f
 def system_matrix(x: np.ndarray, C: np.ndarray, f_n: np.ndarray, noise: np.ndarray, F: np.ndarray) -> None:
     """Continuous-time error dynamics into ``F`` (nx, nx) at nominal state ``x`` with C_b_n and f_n [m/s^2].
 
-    Blocks as in Shin (2005) / KF-GINS: position in local metres, the phi-angle attitude model; gravity, Earth
-    rate and transport rate from :mod:`georef.frames.kernels`.
+    Blocks as in Shin (2005) / KF-GINS: position in local metres, the phi-angle attitude model; the gravity
+    gradient, Earth rate and transport rate from :mod:`georef.frames.kernels`.
     """
     F[:, :] = 0.0
     lat, h = x[X_LAT], x[X_HGT]
@@ -146,8 +151,7 @@ def system_matrix(x: np.ndarray, C: np.ndarray, f_n: np.ndarray, noise: np.ndarr
     sl, cl = math.sin(lat), math.cos(lat)
     w_ie = np.empty(3)
     earth_rate(lat, w_ie)
-    w = math.hypot(w_ie[0], w_ie[2])  # Earth rate magnitude
-    g = gravity(lat, h)
+    w = OMEGA_IE
     # position
     F[POS, POS] = -vd / Mh
     F[POS, POS + 2] = vn / Mh
@@ -162,7 +166,7 @@ def system_matrix(x: np.ndarray, C: np.ndarray, f_n: np.ndarray, noise: np.ndarr
     F[VEL + 1, POS] = 2.0 * w * (vn * cl - vd * sl) / Mh + vn * ve / (Mh * Nh * cl * cl)
     F[VEL + 1, POS + 2] = (ve * vd + vn * ve * tl) / Nh**2
     F[VEL + 2, POS] = 2.0 * w * ve * sl / Mh
-    F[VEL + 2, POS + 2] = -ve * ve / Nh**2 - vn * vn / Mh**2 + 2.0 * g / (math.sqrt(M * N) + h)
+    F[VEL + 2, POS + 2] = -ve * ve / Nh**2 - vn * vn / Mh**2 + gravity_gradient(lat, h)[1]
     F[VEL, VEL] = vd / Mh
     F[VEL, VEL + 1] = -2.0 * (w * sl + ve * tl / Nh)
     F[VEL, VEL + 2] = vn / Mh
@@ -226,10 +230,9 @@ def discretise(F: np.ndarray, q: np.ndarray, dT: float, Phi: np.ndarray, Qd: np.
 @njit(cache=True)
 def correct_state(x: np.ndarray, dx: np.ndarray) -> None:
     """Remove the estimated error ``dx`` (estimate minus truth, NX_NAV or NX_CAL entries) from ``x`` in place."""
-    M, N = radii(x[X_LAT])
-    h = x[X_HGT]
-    x[X_LAT] -= dx[POS] / (M + h)
-    x[X_LON] -= dx[POS + 1] / ((N + h) * math.cos(x[X_LAT]))
+    d_lat, d_lon = ned_to_lat_lon(dx[POS], dx[POS + 1], x[X_LAT], x[X_HGT])
+    x[X_LAT] -= d_lat
+    x[X_LON] -= d_lon
     x[X_HGT] += dx[POS + 2]
     for i in range(3):
         x[X_VEL + i] -= dx[VEL + i]
@@ -297,12 +300,13 @@ def gnss_innovation(x: np.ndarray, C: np.ndarray, fix: np.ndarray, lag: float, n
     ``fix`` = (lat, lon [rad], h [m]); the fix was measured ``lag + latency`` seconds before the nominal
     state's time, so the prediction is moved back along the velocity.
     """
-    M, N = radii(x[X_LAT])
-    lever_n = C @ x[X_LEVER:X_LEVER + 3]
+    lever_n = np.empty(3)
+    lever_arm_into(C, x[X_LEVER:X_LEVER + 3], lever_n)
     back = lag + x[X_LATENCY]
+    d_north, d_east = lat_lon_to_ned(x[X_LAT] - fix[0], x[X_LON] - fix[1], x[X_LAT], x[X_HGT])
     z = np.empty(3)
-    z[0] = (x[X_LAT] - fix[0]) * (M + x[X_HGT]) + lever_n[0] - x[X_VEL] * back
-    z[1] = (x[X_LON] - fix[1]) * (N + x[X_HGT]) * math.cos(x[X_LAT]) + lever_n[1] - x[X_VEL + 1] * back
+    z[0] = d_north + lever_n[0] - x[X_VEL] * back
+    z[1] = d_east + lever_n[1] - x[X_VEL + 1] * back
     z[2] = -(x[X_HGT] - fix[2]) + lever_n[2] - x[X_VEL + 2] * back
     H = np.zeros((3, nx))
     for i in range(3):
@@ -329,18 +333,19 @@ def nhc_innovation(x: np.ndarray, C: np.ndarray, nx: int):
     v = x[X_VEL:X_VEL + 3]
     z = np.zeros(3)
     H = np.zeros((3, nx))
+    c = np.empty(3)
+    row_att = np.empty(3)
     for i in range(2):
         row = i + 1
         # row of C_n_b = column of C_b_n
-        c0, c1, c2 = C[0, row], C[1, row], C[2, row]
-        z[i] = c0 * v[0] + c1 * v[1] + c2 * v[2]
-        H[i, VEL] = c0
-        H[i, VEL + 1] = c1
-        H[i, VEL + 2] = c2
-        # -cᵀ[v x]
-        H[i, ATT] = c2 * v[1] - c1 * v[2]
-        H[i, ATT + 1] = c0 * v[2] - c2 * v[0]
-        H[i, ATT + 2] = c1 * v[0] - c0 * v[1]
+        for j in range(3):
+            c[j] = C[j, row]
+        z[i] = c[0] * v[0] + c[1] * v[1] + c[2] * v[2]
+        # -cᵀ[v x] = (v x c)ᵀ
+        cross(v, c, row_att)
+        for j in range(3):
+            H[i, VEL + j] = c[j]
+            H[i, ATT + j] = row_att[j]
     return z, H
 
 

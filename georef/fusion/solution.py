@@ -12,10 +12,19 @@ from georef.frames import C_e_n, C_n_e
 
 @dataclass
 class GnssUse:
-    """How each GNSS fix was used: time [s], status (1 used, 0 rejected, -1 not processed: outside the IMU span
-    or before the filter's start), innovation [m] and innovation variance [m^2] per NED axis (north, east,
-    down), file line, and the normalised innovation squared (chi-square with 3 degrees of freedom when the
-    model is right) with the full innovation covariance, NaN where not processed."""
+    """How each GNSS fix was used, one row per fix (M rows):
+
+    * ``time`` [s] (M,); ``status`` (M,): 1 used, 0 rejected, -1 not processed (outside the IMU span or before
+      the filter's start);
+    * ``innovation`` [m] (M, 3): the predicted minus the measured position of the fix, resolved in the local
+      NED frame at the fix (north, east, down), for every method (``axis`` filters along ECEF axes and turns
+      its innovations into NED);
+    * ``innovation_var`` [m^2] (M, 3): the innovation's variance along north, east and down;
+    * ``line``: the fix's line in its file;
+    * ``nis``: the normalised innovation squared (chi-square with 3 degrees of freedom when the model is right)
+      with the filter's full innovation covariance, in the frame the filter works in;
+
+    NaN where not processed."""
 
     time: np.ndarray
     status: np.ndarray

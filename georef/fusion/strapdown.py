@@ -20,8 +20,6 @@ same structure as KF-GINS.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
 
@@ -29,11 +27,11 @@ from georef.frames.kernels import (
     cross,
     earth_rate,
     gravity,
+    ned_to_lat_lon,
     quat_from_rotvec,
     quat_mul,
     quat_normalise,
     quat_to_dcm,
-    radii,
     transport_rate,
 )
 
@@ -48,6 +46,46 @@ def increments(gyro_prev: np.ndarray, gyro: np.ndarray, accel_prev: np.ndarray, 
 
 
 @njit(cache=True)
+def add_two_sample_corrections(dtheta: np.ndarray, dvel: np.ndarray, dtheta_prev: np.ndarray,
+                               dvel_prev: np.ndarray, phi: np.ndarray, dv_b: np.ndarray) -> None:
+    """Add the two-sample corrections of an interval to ``phi`` [rad] and ``dv_b`` [m/s] (3,) in place:
+
+    * coning, ``phi += (1/12) dθ_{k-1} x dθ_k``;
+    * rotation and sculling, ``dv_b = dv_b + ½ dθ_k x dv_k + (1/12)(dθ_{k-1} x dv_k + dv_{k-1} x dθ_k)``
+
+    from the bias-corrected increments ``dtheta``, ``dvel`` of the interval and those of the previous one (body
+    frame). With ``phi = dθ_k``, ``dv_b = dv_k`` on entry they become the strapdown's body rotation vector and
+    velocity increment (:func:`mechanise`); with zeros, the corrections alone
+    (:func:`two_sample_corrections`)."""
+    t1 = np.empty(3)
+    t2 = np.empty(3)
+    t3 = np.empty(3)
+    cross(dtheta, dvel, t1)
+    cross(dtheta_prev, dvel, t2)
+    cross(dvel_prev, dtheta, t3)
+    for i in range(3):
+        dv_b[i] = dv_b[i] + 0.5 * t1[i] + (t2[i] + t3[i]) / 12.0
+    cross(dtheta_prev, dtheta, t1)
+    for i in range(3):
+        phi[i] = phi[i] + t1[i] / 12.0
+
+
+@njit(cache=True)
+def two_sample_corrections(dtheta: np.ndarray, dvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The strapdown's coning correction [rad] and rotation + sculling correction [m/s] ((N, 3) each) of
+    consecutive intervals' bias-corrected increments ``dtheta`` [rad] and ``dvel`` [m/s] (N, 3, body frame), as
+    :func:`mechanise` applies them (:func:`add_two_sample_corrections`); the first interval is its own previous
+    one, as in :func:`run_free_inertial` and the filter."""
+    n = dtheta.shape[0]
+    d_phi = np.zeros((n, 3))
+    d_vel = np.zeros((n, 3))
+    for k in range(n):
+        j = k - 1 if k > 0 else 0
+        add_two_sample_corrections(dtheta[k], dvel[k], dtheta[j], dvel[j], d_phi[k], d_vel[k])
+    return d_phi, d_vel
+
+
+@njit(cache=True)
 def mechanise(x: np.ndarray, dtheta: np.ndarray, dvel: np.ndarray, dtheta_prev: np.ndarray,
               dvel_prev: np.ndarray, dt: float, C: np.ndarray) -> None:
     """Advance the nominal state ``x`` in place by one IMU interval; ``C`` receives the new C_b_n."""
@@ -59,14 +97,11 @@ def mechanise(x: np.ndarray, dtheta: np.ndarray, dvel: np.ndarray, dtheta_prev: 
     transport_rate(lat, h, v, w_en)
     zeta = (w_ie + w_en) * dt
 
-    # velocity
+    # velocity, with the body rotation vector (coning) for the attitude below
+    phi = dtheta.copy()
+    dv_b = dvel.copy()
+    add_two_sample_corrections(dtheta, dvel, dtheta_prev, dvel_prev, phi, dv_b)
     t1 = np.empty(3)
-    t2 = np.empty(3)
-    t3 = np.empty(3)
-    cross(dtheta, dvel, t1)
-    cross(dtheta_prev, dvel, t2)
-    cross(dvel_prev, dtheta, t3)
-    dv_b = dvel + 0.5 * t1 + (t2 + t3) / 12.0
     quat_to_dcm(x[6:10], C)
     dv_n = C @ dv_b
     cross(zeta, dv_n, t1)
@@ -76,18 +111,17 @@ def mechanise(x: np.ndarray, dtheta: np.ndarray, dvel: np.ndarray, dtheta_prev: 
     v_new = v + dv_n - coriolis * dt
     v_new[2] += gravity(lat, h) * dt
 
-    # position (trapezoidal velocity)
-    M, _ = radii(lat)
+    # position (trapezoidal velocity): latitude at the start's radius, longitude at the midpoint's
     h_new = h - 0.5 * (v[2] + v_new[2]) * dt
     h_mid = 0.5 * (h + h_new)
-    lat_new = lat + 0.5 * (v[0] + v_new[0]) * dt / (M + h_mid)
+    d_lat, _ = ned_to_lat_lon(0.5 * (v[0] + v_new[0]) * dt, 0.0, lat, h_mid)
+    lat_new = lat + d_lat
     lat_mid = 0.5 * (lat + lat_new)
-    _, N_mid = radii(lat_mid)
-    lon_new = lon + 0.5 * (v[1] + v_new[1]) * dt / ((N_mid + h_mid) * math.cos(lat_mid))
+    _, d_lon = ned_to_lat_lon(0.0, 0.5 * (v[1] + v_new[1]) * dt, lat_mid, h_mid)
+    lon_new = lon + d_lon
 
     # attitude: body coning and the rotation of the navigation frame at the interval's midpoint
-    cross(dtheta_prev, dtheta, t1)
-    q_body = quat_from_rotvec(dtheta + t1 / 12.0)
+    q_body = quat_from_rotvec(phi)
     v_mid = 0.5 * (v + v_new)
     earth_rate(lat_mid, w_ie)
     transport_rate(lat_mid, h_mid, v_mid, w_en)

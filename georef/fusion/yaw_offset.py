@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from georef.frames import C_e_n, euler_to_dcm, geodetic_to_ecef, wrap_pi
+from georef.frames.mounting import lever_arm_offset
 
 HUBER_K = 1.5
 
@@ -217,7 +218,7 @@ def window_offsets(
     C_b_u = euler_to_dcm(unit_rpy[:, 0], unit_rpy[:, 1], unit_rpy[:, 2])
     A_pos, A_vel = _double_integral(iacc_u[:, :2], imu_time, gnss_time)
     B_pos, B_vel = _double_integral(C_b_u[:, :2, :2], imu_time, gnss_time)
-    lever_u = C_b_u[:, :2, :] @ np.asarray(lever_arm_gnss, dtype=float)
+    lever_u = lever_arm_offset(C_b_u, lever_arm_gnss)[:, :2]
     L_at = np.stack([np.interp(gnss_time, imu_time, lever_u[:, k]) for k in range(2)], -1)
     inside = (gnss_time >= imu_time[0]) & (gnss_time <= imu_time[-1])
     centres = np.arange(gnss_time[inside][0] + window / 2, gnss_time[inside][-1] - window / 2 + 1e-9, step) \

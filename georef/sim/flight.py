@@ -191,8 +191,8 @@ def _unit_outputs(cfg: SimConfig, traj: Trajectory, accel_error_b: np.ndarray,
     # Level-frame kinematic acceleration, resolved on the unit's own azimuth reference.
     accel_error_n = np.einsum("nij,nj->ni", traj.C_b_n, accel_error_b)
     a_n = traj.a_n + accel_error_n + unit.iacc_bias_mps2 * rng.standard_normal(3)
-    c, s = np.cos(yaw_offset), np.sin(yaw_offset)
-    iacc = np.stack([c * a_n[:, 0] + s * a_n[:, 1], -s * a_n[:, 0] + c * a_n[:, 1], a_n[:, 2]], axis=-1)
+    # the unit's azimuth reference is NED turned by the yaw offset about down: IACC = Rz(offset)ᵀ a_n
+    iacc = np.einsum("nji,nj->ni", euler_to_dcm(0.0, 0.0, yaw_offset), a_n)
     return {"ROLL": np.degrees(roll), "PITCH": np.degrees(pitch),
             "YAW": (np.degrees(yaw) + 180.0) % 360.0 - 180.0, "IACC": iacc, "yaw_offset": yaw_offset}
 

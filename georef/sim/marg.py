@@ -12,9 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from georef.frames import dcm_to_euler, euler_to_dcm
-
-GRAVITY = 9.81
+from georef.frames import STANDARD_GRAVITY, dcm_to_euler, euler_to_dcm
 
 
 @dataclass
@@ -67,7 +65,7 @@ def simulate_marg(cfg: MargConfig | None = None) -> MargData:
     C = C_fine[idx]
     t = t_fine[idx]
     lin = cfg.linear_accel * np.sin(2 * np.pi * np.outer(t, [0.11, 0.07, 0.05]) + rng.uniform(0, 6, 3))
-    f_n = lin - np.array([0.0, 0.0, GRAVITY])
+    f_n = lin - np.array([0.0, 0.0, STANDARD_GRAVITY])
     C_n_b = np.swapaxes(C, 1, 2)
     accel = np.einsum("nij,nj->ni", C_n_b, f_n) + np.asarray(cfg.accel_bias) + rng.normal(0, cfg.accel_noise, (n, 3))
     gyro = omega[idx] + np.asarray(cfg.gyro_bias) + rng.normal(0, cfg.gyro_noise, (n, 3))

@@ -22,8 +22,8 @@ from georef.frames import (
     dcm_to_euler,
     earth_rate_n,
     euler_to_dcm,
+    ned_to_lat_lon,
     normal_gravity,
-    radii_of_curvature,
     transport_rate_n,
     wrap_pi,
 )
@@ -126,15 +126,15 @@ def integrate_position(t: np.ndarray, v_n: np.ndarray, lat0: float, lon0: float,
 
     ``lat' = v_N/(M+h)``, ``lon' = v_E/((N+h) cos lat)``, ``h' = -v_D`` integrated by the trapezoid rule from
     ``(lat0, lon0 [rad], h0 [m])`` at ``t[0]``; the radii of curvature (``georef.frames``) are refined by
-    fixed-point iteration. Second-order accurate in the grid step.
+    fixed-point iteration (:func:`georef.frames.ned_to_lat_lon`). Second-order accurate in the grid step.
     """
     height = h0 - cumulative_trapezoid(v_n[:, 2], t, initial=0.0)
     lat = np.full_like(t, lat0)
     for _ in range(3):
-        M, N = radii_of_curvature(lat)
-        lat = lat0 + cumulative_trapezoid(v_n[:, 0] / (M + height), t, initial=0.0)
-    M, N = radii_of_curvature(lat)
-    lon = lon0 + cumulative_trapezoid(v_n[:, 1] / ((N + height) * np.cos(lat)), t, initial=0.0)
+        lat_rate, _ = ned_to_lat_lon(v_n[:, 0], v_n[:, 1], lat, height)
+        lat = lat0 + cumulative_trapezoid(lat_rate, t, initial=0.0)
+    _, lon_rate = ned_to_lat_lon(v_n[:, 0], v_n[:, 1], lat, height)
+    lon = lon0 + cumulative_trapezoid(lon_rate, t, initial=0.0)
     return lat, lon, height
 
 
