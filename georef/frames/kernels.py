@@ -197,14 +197,6 @@ def skew_into(v: np.ndarray, out: np.ndarray) -> None:
 
 
 @njit(cache=True)
-def skew_matrix(v: np.ndarray) -> np.ndarray:
-    """``[v x]`` (3, 3) of a 3-vector ``v``: ``[v x] u = v x u``."""
-    S = np.empty((3, 3))
-    skew_into(v, S)
-    return S
-
-
-@njit(cache=True)
 def lever_arm_into(C: np.ndarray, lever: np.ndarray, out: np.ndarray) -> None:
     """Offset ``C lever`` [m] (3,) of a body-frame lever arm [m] in the frame ``C`` (3, 3) rotates the body into
     (NED, the initial body frame, a tangent plane), into ``out``; the compiled twin of
