@@ -233,8 +233,17 @@ with atomic_write(sys.argv[1]) as handle:
 """
 
 
+def _default_signals() -> None:
+    """In the writer before it starts: SIGHUP and SIGINT at their default actions. A suite started under
+    ``nohup`` or as a background job hands its children both ignored, and a writer that ignores a signal rightly
+    keeps writing (the handler leaves an ignored signal ignored)."""
+    for signum in (signal.SIGHUP, signal.SIGINT):
+        signal.signal(signum, signal.SIG_DFL)
+
+
 def _start_writer(target: Path) -> subprocess.Popen:
-    writer = subprocess.Popen([sys.executable, "-c", _WRITER, str(target)], stdout=subprocess.PIPE, text=True)
+    writer = subprocess.Popen([sys.executable, "-c", _WRITER, str(target)], stdout=subprocess.PIPE, text=True,
+                              preexec_fn=_default_signals)
     assert writer.stdout.readline().strip() == "writing"
     return writer
 
