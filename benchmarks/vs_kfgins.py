@@ -11,8 +11,10 @@ IMU errors and sigmas at every row; georef aligns, fits its noise model (several
 forward filter and the smoother at full rate and writes one EO row per exposure.
 
 The two commands run alternately, each pinned to one core (``taskset -c 0`` when present), a first round not
-counted; the medians and the ratio georef / KF-GINS are printed with the load average before and after, and
-KF-GINS's horizontal position error against the truth (a check that it really filtered the flight).
+counted; the medians of the wall time (and of the CPU time, steadier on a loaded machine) and the ratio
+georef / KF-GINS are printed with the load average before and after, and KF-GINS's horizontal position error
+against the truth (a check that it really filtered the flight). georef runs with its bytecode cached
+(``PYTHONDONTWRITEBYTECODE`` is dropped from the environment), as an installed georef does after its first run.
 
 KF-GINS is not a dependency of georef: ``--kfgins`` (or ``$KFGINS``) names its built binary, its source tree
 (built here with cmake into ``<tree>/build``) or a git repository of it (its sources are exported into a
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -150,13 +153,16 @@ def kfgins_position_error(flight: SimulatedFlight, folder: Path) -> tuple[float,
     return float(np.sqrt(np.mean(ned[:, 0] ** 2 + ned[:, 1] ** 2))), len(result)
 
 
-def _timed(command: list[str], env: dict[str, str]) -> float:
+def _timed(command: list[str], env: dict[str, str]) -> tuple[float, float]:
+    """Wall time and CPU time (user + system) [s] of one run of ``command``."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     done = subprocess.run(command, env=env, capture_output=True, text=True)
     seconds = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode not in (0, 4):
         raise SystemExit(f"{command[0]} exited {done.returncode}: {done.stdout[-600:]}{done.stderr[-600:]}")
-    return seconds
+    return seconds, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
 def main() -> None:
@@ -175,6 +181,7 @@ def main() -> None:
     georef = str(Path(sys.executable).with_name("georef"))
     pin = ["taskset", "-c", "0"] if shutil.which("taskset") else []
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    env.pop("PYTHONDONTWRITEBYTECODE", None)  # an installed georef has its bytecode cached, as after a first run
     with tempfile.TemporaryDirectory() as tmp:
         folder = args.folder or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
@@ -194,11 +201,13 @@ def main() -> None:
               f"{args.method}; {'pinned to core 0' if pin else 'not pinned'}")
         load_before = os.getloadavg()
         times: dict[str, list[float]] = {name: [] for name in commands}
+        cpu: dict[str, list[float]] = {name: [] for name in commands}
         for run in range(args.runs + 1):  # the first round warms the caches and is not counted
             for name, command in commands.items():
-                seconds = _timed(command, env)
+                seconds, used = _timed(command, env)
                 if run:
                     times[name].append(seconds)
+                    cpu[name].append(used)
         load_after = os.getloadavg()
         if binary is not None:
             rms, rows = kfgins_position_error(flight, folder / "kfgins")
@@ -209,12 +218,13 @@ def main() -> None:
     for name, values in times.items():
         medians[name] = float(np.median(values))
         print(f"{name:>8}: median {medians[name]:.2f} s, best {min(values):.2f} s, runs "
-              f"{', '.join(f'{v:.2f}' for v in values)}")
+              f"{', '.join(f'{v:.2f}' for v in values)}; CPU (user + system) median {np.median(cpu[name]):.2f} s")
     if binary is None:
         print("KF-GINS not given (--kfgins or $KFGINS): georef timed alone, no ratio")
         return
     print(f"georef / KF-GINS: median {medians['georef'] / medians['KF-GINS']:.2f}x, pairs "
-          f"{', '.join(f'{g / k:.2f}' for g, k in zip(times['georef'], times['KF-GINS'], strict=True))}")
+          f"{', '.join(f'{g / k:.2f}' for g, k in zip(times['georef'], times['KF-GINS'], strict=True))}; CPU time "
+          f"median {np.median(cpu['georef']) / np.median(cpu['KF-GINS']):.2f}x")
 
 
 if __name__ == "__main__":

@@ -29,6 +29,7 @@ from rich.markup import escape
 from georef.config import load_configs
 from georef.io.errors import GeorefError
 
+from .coercion import PlainCoercionCommand, PlainCoercionGroup
 from .options import (
     AttitudeMethod,
     BatchMethod,
@@ -57,7 +58,8 @@ EXIT_INTERNAL_ERROR = 3
 EXIT_QC_FAILED = 4
 
 app = typer.Typer(
-    add_completion=False, no_args_is_help=True, rich_markup_mode=None, pretty_exceptions_enable=False,
+    cls=PlainCoercionGroup, add_completion=False, no_args_is_help=True, rich_markup_mode=None,
+    pretty_exceptions_enable=False,
     help="georef: GPS/INS direct georeferencing of aerial imagery. Units: metres, degrees, seconds; "
          "body axes x forward, y right, z down.",
 )
@@ -176,7 +178,7 @@ def _print_verdict(verdict: Any, quiet: bool) -> None:
         console.print(f"[bold green]QC passed[/]{extra}", highlight=False)
 
 
-@app.command()
+@app.command(cls=PlainCoercionCommand)
 @_user_errors
 def process(
     pos: Annotated[Path, typer.Argument(help="POS unit log (POS.txt, tab separated, iMAR layout).")],
@@ -226,7 +228,6 @@ def process(
 
     Exit code 4: the outputs are written but the quality checks failed (docs/qc.md).
     """
-    from georef.frames.heights import OutputFrames
     from georef.io.exports import ExportError, ExportSpec, check_exports, format_of, parse_export, write_export
     from georef.io.image_names import ImageNames
     from georef.pipeline import process as run
@@ -260,7 +261,11 @@ def process(
     specs = [ExportSpec(format_of(output, output_format), output), *(parse_export(text) for text in export or [])]
     _one_stdout(**{"-o": output, "--summary-json": summary_json,
                    **{f"--export {text}": spec.path for text, spec in zip(export or [], specs[1:], strict=True)}})
-    frames = OutputFrames(cfg.crs, cfg.height, cfg.vertical_crs) if cfg.crs or cfg.height != "ellipsoidal" else None
+    frames = None
+    if cfg.crs or cfg.height != "ellipsoidal":
+        from georef.frames.heights import OutputFrames  # pyproj only when a CRS or a geoid is asked for
+
+        frames = OutputFrames(cfg.crs, cfg.height, cfg.vertical_crs)
     check_exports(specs, frames)
     if cfg.image_names:
         ImageNames.parse(cfg.image_names)
@@ -391,7 +396,7 @@ def _print_summary(result: Any, output: Path, verbose: bool, to: Console) -> Non
             console.print(f"[yellow]notice:[/] ... {len(notices) - len(shown)} more (use --verbose)")
 
 
-@app.command()
+@app.command(cls=PlainCoercionCommand)
 @_user_errors
 def simulate(
     folder: Annotated[Path, typer.Argument(help="Folder to write POS.txt, Kamera.txt, truth.csv, flight.toml.")],
@@ -508,7 +513,7 @@ def simulate(
                   f"{len(flight.gnss_fixes)} GNSS fixes at {gnss_rate:g} Hz")
 
 
-@app.command()
+@app.command(cls=PlainCoercionCommand)
 @_user_errors
 def fuse(
     imu: Annotated[Path, typer.Option(help="imu.csv: time [s], gyro_x..z [rad/s], acc_x..z [m/s^2], body FRD.")],
@@ -586,7 +591,7 @@ def fuse(
         raise typer.Exit(code=code)
 
 
-@app.command()
+@app.command(cls=PlainCoercionCommand)
 @_user_errors
 def attitude(
     imu: Annotated[Path, typer.Option(help="imu.csv: time [s], gyro_x..z [rad/s], acc_x..z [m/s^2], optional "
@@ -624,7 +629,7 @@ def attitude(
                                 soft_wrap=True)
 
 
-@app.command()
+@app.command(cls=PlainCoercionCommand)
 @_user_errors
 def batch(
     source: Annotated[Path, typer.Argument(help="A folder of flight folders (POS.txt, Kamera.txt, flight.toml each) "
@@ -780,7 +785,7 @@ def _cell(value: Any) -> str:
     return str(value)
 
 
-@app.command()
+@app.command(cls=PlainCoercionCommand)
 @_user_errors
 def info(
     pos: Annotated[Path, typer.Argument(help="POS unit log (POS.txt).")],
@@ -814,7 +819,7 @@ def info(
         console.print(f"[yellow]notice:[/] {escape(str(notice))}", highlight=False)
 
 
-@app.command("build-kernels")
+@app.command("build-kernels", cls=PlainCoercionCommand)
 @_user_errors
 def build_kernels(
     quiet: Quiet = False,
@@ -836,7 +841,7 @@ def build_kernels(
         console.print(f"built {escape(str(path))}", highlight=False)
 
 
-@app.command()
+@app.command(cls=PlainCoercionCommand)
 @_user_errors
 def evaluate(
     eo: Annotated[Path, typer.Argument(help="EO table written by georef process ('-': read it from standard "
