@@ -9,7 +9,6 @@ case-insensitively), so a wrong value is refused before anything runs, with the 
 from __future__ import annotations
 
 from enum import Enum
-from importlib import metadata
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -30,6 +29,8 @@ VEHICLES = ("auto", "ground", "air")
 
 def georef_version() -> str:
     """The installed georef's version (``pyproject.toml``), or ``"unknown"`` when it runs from an uninstalled tree."""
+    from importlib import metadata  # its import costs every run ~20 ms; only --version and summaries need it
+
     try:
         return metadata.version("georef")
     except metadata.PackageNotFoundError:

@@ -203,19 +203,24 @@ def system_matrix(x: np.ndarray, C: np.ndarray, f_n: np.ndarray, noise: np.ndarr
 
 
 @njit(cache=True)
-def discretise(F: np.ndarray, q: np.ndarray, dT: float, Phi: np.ndarray, Qd: np.ndarray) -> None:
+def discretise(F: np.ndarray, q: np.ndarray, dT: float, Phi: np.ndarray, Qd: np.ndarray,
+               work: np.ndarray) -> None:
     """Transition matrix and process-noise covariance of an interval ``dT`` [s], to third order in ``F dT``.
 
     ``Φ = I + A + A²/2 + A³/6`` with ``A = F dT``; ``Q_d = ∫ Φ(s) diag(q) Φ(s)ᵀ ds`` by its Taylor series
     ``Q dT + (FQ + QFᵀ) dT²/2 + (F²Q + 2FQFᵀ + QF²ᵀ) dT³/6`` (exact for the double integrator of white
-    specific force, and it carries attitude noise into velocity over long intervals).
+    specific force, and it carries attitude noise into velocity over long intervals). ``work`` (5, n, n) holds
+    A, A², A³, F diag(q) and F diag(q) Fᵀ (no allocation: this runs at every covariance epoch).
     """
     n = F.shape[0]
-    A = F * dT
-    A2 = A @ A
-    A3 = A2 @ A
-    FQ = F * q  # F diag(q): columns scaled
-    FQF = FQ @ F.T
+    A, A2, A3, FQ, FQF = work[0], work[1], work[2], work[3], work[4]
+    for i in range(n):
+        for j in range(n):
+            A[i, j] = F[i, j] * dT
+            FQ[i, j] = F[i, j] * q[j]  # F diag(q): columns scaled
+    np.dot(A, A, A2)
+    np.dot(A2, A, A3)
+    np.dot(FQ, F.T, FQF)
     for i in range(n):
         for j in range(n):
             Phi[i, j] = A[i, j] + 0.5 * A2[i, j] + A3[i, j] / 6.0
@@ -261,12 +266,20 @@ def corrected(x: np.ndarray, dx: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def propagate(P: np.ndarray, x_epoch: np.ndarray, C_mean: np.ndarray, f_mean: np.ndarray, noise: np.ndarray,
-              dT: float, q_scale: np.ndarray, F: np.ndarray, Phi: np.ndarray, Qd: np.ndarray) -> np.ndarray:
+              dT: float, q_scale: np.ndarray, F: np.ndarray, Phi: np.ndarray, Qd: np.ndarray, work: np.ndarray,
+              out: np.ndarray) -> None:
     """Covariance propagation over one epoch interval ``dT`` [s] with the process noise scaled by ``q_scale`` =
-    (navigation white noise factor, bias drive factor); fills F, Φ and Q_d, returns P⁻."""
+    (navigation white noise factor, bias drive factor); fills F, Φ and Q_d, writes P⁻ = Φ P Φᵀ + Q_d into ``out``
+    (not ``P``). ``work`` (6, nx, nx): scratch."""
     system_matrix(x_epoch, C_mean, f_mean, noise, F)
-    discretise(F, continuous_noise(noise, P.shape[0], q_scale[0], q_scale[1]), dT, Phi, Qd)
-    return Phi @ P @ Phi.T + Qd
+    discretise(F, continuous_noise(noise, P.shape[0], q_scale[0], q_scale[1]), dT, Phi, Qd, work)
+    PhiP = work[5]
+    np.dot(Phi, P, PhiP)
+    np.dot(PhiP, Phi.T, out)
+    n = P.shape[0]
+    for i in range(n):
+        for j in range(n):
+            out[i, j] += Qd[i, j]
 
 
 @njit(cache=True)
@@ -351,25 +364,37 @@ def nhc_innovation(x: np.ndarray, C: np.ndarray, nx: int):
 
 @njit(cache=True)
 def kalman_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, z: np.ndarray, S_inv: np.ndarray, C: np.ndarray,
-                  dx_total: np.ndarray) -> np.ndarray:
-    """Kalman update with the inverse innovation covariance ``S_inv``, fed back into ``x``; returns the new P.
+                  dx_total: np.ndarray, work: np.ndarray, out: np.ndarray) -> None:
+    """Kalman update with the inverse innovation covariance ``S_inv``, fed back into ``x``; writes the new P
+    into ``out`` (not ``P``); ``work`` (nx, nx): scratch.
 
     ``P - K S Kᵀ`` (symmetrised by the caller) rather than the Joseph form: with the optimal gain they are
     equal, and this costs O(n²) instead of two n³ products; in double precision with symmetrisation it stays
     positive definite for these state sizes.
     """
-    PHt = P @ H.T
-    K = PHt @ S_inv
-    dx = K @ z
+    n = P.shape[0]
+    PHt = np.empty((n, 3))
+    np.dot(P, H.T, PHt)
+    K = np.empty((n, 3))
+    np.dot(PHt, S_inv, K)
+    dx = np.empty(n)
+    np.dot(K, z, dx)
     correct_state(x, dx)
     quat_to_dcm(x[X_QUAT:X_QUAT + 4], C)
     dx_total += dx
-    return P - K @ PHt.T
+    np.dot(K, PHt.T, work)
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = P[i, j] - work[i, j]
 
 
 @njit(cache=True)
 def innovation_covariance(P: np.ndarray, H: np.ndarray, r: np.ndarray) -> np.ndarray:
-    S = H @ P @ H.T
+    """S = H P Hᵀ + diag(r) (3, 3)."""
+    HP = np.empty((3, P.shape[0]))
+    np.dot(H, P, HP)
+    S = np.empty((3, 3))
+    np.dot(HP, H.T, S)
     for i in range(3):
         S[i, i] += r[i]
     return S
@@ -407,9 +432,11 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
     max_epochs = (n - start_row) // max(stride, 1) + m + 2
     ep_row = np.zeros(max_epochs, dtype=np.int64)
     ep_dT = np.zeros(max_epochs)
-    ep_Pm = np.zeros((max_epochs, nx, nx))
-    ep_Pp = np.zeros((max_epochs, nx, nx))
-    ep_Phi = np.zeros((max_epochs, nx, nx))
+    # the epochs' matrices are written epoch by epoch and returned up to the last one written: left unfilled
+    # (filling these three, 22 MB for a 15-minute flight at 2 Hz, took a quarter of the pass's time)
+    ep_Pm = np.empty((max_epochs, nx, nx))
+    ep_Pp = np.empty((max_epochs, nx, nx))
+    ep_Phi = np.empty((max_epochs, nx, nx))
     ep_dx = np.zeros((max_epochs, nx))
     fix_epoch = np.full(m, -1, dtype=np.int64)
     fix_z = np.full((m, 3), np.nan)
@@ -417,12 +444,13 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
     fix_S = np.full((m, 3, 3), np.nan)
     fix_d2 = np.full(m, np.nan)
     fix_status = np.full(m, FIX_UNUSED, dtype=np.int64)
-    aux_epoch = np.zeros(2 * max_epochs, dtype=np.int64)
-    aux_kind = np.zeros(2 * max_epochs, dtype=np.int64)
-    aux_z = np.zeros((2 * max_epochs, 3))
-    aux_H = np.zeros((2 * max_epochs, 3, nx))
-    aux_status = np.zeros(2 * max_epochs, dtype=np.int64)
-    aux_r = np.zeros((2 * max_epochs, 3))
+    # written update by update, returned up to the last one written
+    aux_epoch = np.empty(2 * max_epochs, dtype=np.int64)
+    aux_kind = np.empty(2 * max_epochs, dtype=np.int64)
+    aux_z = np.empty((2 * max_epochs, 3))
+    aux_H = np.empty((2 * max_epochs, 3, nx))
+    aux_status = np.empty(2 * max_epochs, dtype=np.int64)
+    aux_r = np.empty((2 * max_epochs, 3))
     n_aux = 0
     stop = np.array([n - 1, -1, STOP_END], dtype=np.int64)
     # innovation log-likelihood of the GNSS fixes, unit and NHC updates at each epoch:
@@ -435,6 +463,7 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
     ep_row[0] = start_row
     ep_Pm[0] = P
     ep_Pp[0] = P
+    ep_Phi[0] = 0.0
     for i in range(nx):
         ep_Phi[0, i, i] = 1.0
     n_ep = 1
@@ -444,6 +473,10 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
     dvel_prev = np.zeros(3)
     C = np.empty((3, 3))
     quat_to_dcm(x[X_QUAT:X_QUAT + 4], C)
+    C_start = np.empty((3, 3))
+    C_mid = np.empty((3, 3))
+    u = np.empty(3)
+    f_row = np.empty(3)
     C_sum = np.zeros((3, 3))
     f_sum = np.zeros(3)
     count = 0
@@ -467,13 +500,17 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
     F = np.zeros((nx, nx))
     Phi = np.zeros((nx, nx))
     Qd = np.zeros((nx, nx))
+    # P and the buffer the next step writes into (swapped after each step), scratch for the products
+    P_next = np.empty((nx, nx))
+    work = np.empty((6, nx, nx))
     for k in range(start_row + 1, n):
         dt = t[k] - t[k - 1]
         if dt > max_gap:
             # no IMU data across the gap: close the epoch at the row before it and stop
             if count > 0:
-                P = propagate(P, x_epoch, C_sum / count, f_sum / count, noise, t[k - 1] - t_epoch, q_scale[k - 1],
-                              F, Phi, Qd)
+                propagate(P, x_epoch, C_sum / count, f_sum / count, noise, t[k - 1] - t_epoch, q_scale[k - 1],
+                          F, Phi, Qd, work, P_next)
+                P, P_next = P_next, P
                 ep_row[n_ep] = k - 1
                 ep_dT[n_ep] = t[k - 1] - t_epoch
                 ep_Pm[n_ep] = P
@@ -489,7 +526,7 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
         if k == start_row + 1:
             dtheta_prev[:] = dtheta
             dvel_prev[:] = dvel
-        C_start = C.copy()
+        C_start[:, :] = C
         mechanise(x, dtheta, dvel, dtheta_prev, dvel_prev, dt, C)
         dtheta_prev[:] = dtheta
         dvel_prev[:] = dvel
@@ -498,13 +535,21 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
         decay = math.exp(-dt * noise[INV_TAU_UNIT])
         x[X_UNIT_LEVEL] *= decay
         x[X_UNIT_LEVEL + 1] *= decay
-        C_mid = 0.5 * (C_start + C)
-        C_sum += C_mid
-        f_sum += C_mid @ (dvel / dt)
+        # the interval's mean attitude and specific force, for F; per component (no temporaries: every row)
+        for i in range(3):
+            u[i] = dvel[i] / dt
+            for j in range(3):
+                C_mid[i, j] = 0.5 * (C_start[i, j] + C[i, j])
+                C_sum[i, j] += C_mid[i, j]
+        np.dot(C_mid, u, f_row)
+        for i in range(3):
+            f_sum[i] += f_row[i]
         count += 1
         has_fix = k_fix < m and fix_row[k_fix] == k
         if count >= stride or has_fix or k == n - 1:
-            P = propagate(P, x_epoch, C_sum / count, f_sum / count, noise, t[k] - t_epoch, q_scale[k], F, Phi, Qd)
+            propagate(P, x_epoch, C_sum / count, f_sum / count, noise, t[k] - t_epoch, q_scale[k], F, Phi, Qd, work,
+                      P_next)
+            P, P_next = P_next, P
             if not math.isfinite(np.trace(P) + np.sum(x)):
                 # numerically gone (a wild correction, an absurd lever arm): a divergence, never a NaN passed on
                 stop[0] = ep_row[n_ep - 1]
@@ -538,7 +583,8 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
                 # fix would drop it exactly when the heading drifts and it carries the most information
                 if d2 <= NHC_GATE:
                     aux_status[n_aux] = FIX_USED
-                    P = kalman_update(x, P, H, z, S_inv, C, dx_total)
+                    kalman_update(x, P, H, z, S_inv, C, dx_total, work[0], P_next)
+                    P, P_next = P_next, P
                 else:
                     aux_status[n_aux] = FIX_REJECTED
                 aux_r[n_aux] = r_turn
@@ -557,7 +603,8 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
                 aux_H[n_aux] = H
                 if d2 <= gate_chi2:
                     aux_status[n_aux] = FIX_USED
-                    P = kalman_update(x, P, H, z, S_inv, C, dx_total)
+                    kalman_update(x, P, H, z, S_inv, C, dx_total, work[0], P_next)
+                    P, P_next = P_next, P
                 else:
                     aux_status[n_aux] = FIX_REJECTED
                 aux_r[n_aux] = r_unit
@@ -583,7 +630,8 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
                 if d2 <= gate:
                     fix_status[k_fix] = FIX_USED
                     rejects = 0
-                    P = kalman_update(x, P, H, z, S_inv, C, dx_total)
+                    kalman_update(x, P, H, z, S_inv, C, dx_total, work[0], P_next)
+                    P, P_next = P_next, P
                 else:
                     fix_status[k_fix] = FIX_REJECTED
                     if rejects == 0:
@@ -594,7 +642,10 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
                 t_last_fix = t_fix
                 gap_since_fix = False
                 k_fix += 1
-            P = 0.5 * (P + P.T)
+            for i in range(nx):
+                for j in range(nx):
+                    P_next[i, j] = 0.5 * (P[i, j] + P[j, i])
+            P, P_next = P_next, P
             ep_Pp[n_ep] = P
             ep_dx[n_ep] = dx_total
             n_ep += 1
@@ -675,28 +726,57 @@ def rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, ep_outage, noise
               np.array([ATT + 2]), np.array([BG, BG + 1, BG + 2]), np.array([BA, BA + 1, BA + 2]),
               np.array([UNIT_LEVEL, UNIT_LEVEL + 1]), np.array([UNIT_YAW, UNIT_DRIFT])]
     block_ids = np.array([B_VEL_H, B_VEL_V, B_ATT_H, B_ATT_V, B_BG, B_BA, B_UNIT_LEVEL, B_UNIT_DRIFT])
+    # scratch (no allocation per epoch besides the solve's): Φ P⁺, P_next - P⁻, products, the smoothed P
+    PhiPp = np.empty((nx, nx))
+    D = np.empty((nx, nx))
+    M1 = np.empty((nx, nx))
+    M2 = np.empty((nx, nx))
+    P_s = np.empty((nx, nx))
+    Qd = np.empty((nx, nx))
+    cov_w = np.empty((nx, nx))
+    w = np.empty(nx)
     for j in range(n_ep - 2, -1, -1):
         if seg_start[j + 1]:
             err_post[j] = 0.0
             err_pre[j] = ep_dx[j]
             continue
         Phi = ep_Phi[j + 1]
-        P_plus = ep_Pp[j].copy()
+        P_plus = ep_Pp[j]  # read before ep_Pp[j] receives the smoothed covariance, below
         P_minus = ep_Pm[j + 1]
         # A = P+_j Φᵀ (P-_{j+1})⁻¹, by a solve with the symmetric P-
-        A = np.linalg.solve(P_minus, Phi @ P_plus).T
-        err_post[j] = A @ err_pre[j + 1]
-        err_pre[j] = ep_dx[j] + err_post[j]
+        np.dot(Phi, P_plus, PhiPp)
+        A = np.linalg.solve(P_minus, PhiPp).T
+        np.dot(A, err_pre[j + 1], err_post[j])
+        for i in range(nx):
+            err_pre[j, i] = ep_dx[j, i] + err_post[j, i]
         P_next = ep_Pp[j + 1]
-        P_s = P_plus + A @ (P_next - P_minus) @ A.T
-        P_s = 0.5 * (P_s + P_s.T)
+        for a in range(nx):
+            for b in range(nx):
+                D[a, b] = P_next[a, b] - P_minus[a, b]
+        np.dot(A, D, M1)
+        np.dot(M1, A.T, M2)
+        for a in range(nx):
+            for b in range(nx):
+                M1[a, b] = P_plus[a, b] + M2[a, b]
+        for a in range(nx):
+            for b in range(nx):
+                P_s[a, b] = 0.5 * (M1[a, b] + M1[b, a])
         if want_stats:
             # process noise between epochs j and j+1: w = ε⁻_{j+1} - Φ ε⁺_j, its mean and posterior covariance
-            w = err_pre[j + 1] - Phi @ err_post[j]
-            Qd = P_minus - Phi @ P_plus @ Phi.T
-            L = P_next @ A.T  # Cov(ε⁻_{j+1}, ε⁺_j | all data)
-            PhiLt = Phi @ L.T
-            cov_w = P_next + Phi @ P_s @ Phi.T - PhiLt - PhiLt.T
+            np.dot(Phi, err_post[j], w)
+            for i in range(nx):
+                w[i] = err_pre[j + 1, i] - w[i]
+            np.dot(PhiPp, Phi.T, M1)  # Φ P⁺ Φᵀ
+            for a in range(nx):
+                for b in range(nx):
+                    Qd[a, b] = P_minus[a, b] - M1[a, b]
+            np.dot(P_next, A.T, M1)  # L = Cov(ε⁻_{j+1}, ε⁺_j | all data)
+            np.dot(Phi, M1.T, D)  # Φ Lᵀ
+            np.dot(Phi, P_s, M1)
+            np.dot(M1, Phi.T, M2)  # Φ P_s Φᵀ
+            for a in range(nx):
+                for b in range(nx):
+                    cov_w[a, b] = P_next[a, b] + M2[a, b] - D[a, b] - D[b, a]
             for b in range(len(blocks)):
                 _block_statistic(w, cov_w, Qd, blocks[b], stats, B_OUTAGE if ep_outage[j + 1] else block_ids[b])
         ep_Pp[j] = P_s
@@ -765,6 +845,8 @@ def finish_rows(t, nav, ep_row, err_post, err_pre, P_post, P_pre):
     angles = np.full((n, 3), np.nan)
     sigma = np.full((n, 3), np.nan)
     C = np.empty((3, 3))
+    JP = np.empty((3, 3))
+    S = np.empty((3, 3))
     for r in range(n):
         valid[r] = not math.isnan(nav[r, X_LAT]) and not math.isnan(pos_var[r, 0])
         if not valid[r]:
@@ -773,7 +855,8 @@ def finish_rows(t, nav, ep_row, err_post, err_pre, P_post, P_pre):
         roll, pitch, yaw = dcm_to_euler(C)
         angles[r, 0], angles[r, 1], angles[r, 2] = roll, pitch, yaw
         J = euler_error_jacobian(C)
-        S = J @ att_cov[r] @ J.T
+        np.dot(J, att_cov[r], JP)
+        np.dot(JP, J.T, S)
         for i in range(3):
             sigma[r, i] = math.sqrt(max(S[i, i], 0.0))
     epoch_sigma = np.empty((n_ep, nx))

@@ -140,7 +140,11 @@ def _double_integral(values: np.ndarray, imu_time: np.ndarray, at: np.ndarray) -
 def _rotate(d: float, v: np.ndarray) -> np.ndarray:
     """R(d) applied to horizontal (north, east) vectors in the last axis."""
     c, s = np.cos(d), np.sin(d)
-    return np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], -1)
+    out = np.empty(v.shape)  # filled in place: this runs a thousand times per flight (np.stack cost a third)
+    x, y = v[..., 0], v[..., 1]
+    np.subtract(c * x, s * y, out=out[..., 0])
+    np.add(s * x, c * y, out=out[..., 1])
+    return out
 
 
 def _window_solve(r_n: np.ndarray, tau: np.ndarray, A: np.ndarray, B: np.ndarray,

@@ -25,12 +25,10 @@ back with the consumer's own parsing code (ported, cited) or an independent vali
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
-from xml.sax.saxutils import escape, quoteattr
 
 import numpy as np
 import pandas as pd
@@ -225,6 +223,8 @@ def _properties(row: pd.Series) -> dict:
 
 
 def write_geojson(table: pd.DataFrame, path: Path) -> None:
+    import json  # imported by the formats that use it (a run writing the CSV table does not)
+
     rows = _georeferenced(table)
     features = [{"type": "Feature",
                  "geometry": {"type": "Point", "coordinates": [round(float(r["lon"]), 10), round(float(r["lat"]), 10),
@@ -235,6 +235,8 @@ def write_geojson(table: pd.DataFrame, path: Path) -> None:
 
 
 def write_kml(table: pd.DataFrame, path: Path, frames: OutputFrames | None) -> None:
+    from xml.sax.saxutils import escape, quoteattr  # pulls in urllib, http.client and ssl: only for KML
+
     rows = _georeferenced(table).copy()
     rows["height_egm96"] = _kml_frames(frames).egm96(rows["lat"], rows["lon"], rows["height"])
     labels = _labels(rows)
