@@ -413,11 +413,17 @@ def _gnss_factor(gtsam: ModuleType, key_x: int, key_v: int, z: np.ndarray, lag: 
     H_c = np.hstack([R, -velocity[:, None]]) / sigma[:, None]
     linear = gtsam.JacobianFactor(key_x, H_pose, key_v, H_v, CALIBRATION, H_c, -residual / sigma,
                                   gtsam.noiseModel.Unit.Create(3))
-    point = gtsam.Values()
-    point.insert(key_x, pose)
-    point.insert(key_v, velocity)
-    point.insert(CALIBRATION, calibration)
-    return gtsam.LinearContainerFactor(linear, point)
+    return _kept_linear(gtsam, linear, ((key_x, pose), (key_v, velocity), (CALIBRATION, calibration)))
+
+
+def _kept_linear(gtsam: ModuleType, linear: gtsam.JacobianFactor,
+                 point: tuple[tuple[int, object], ...]) -> gtsam.LinearContainerFactor:
+    """``linear`` kept as a ``LinearContainerFactor`` at ``point`` (key, value) pairs: the values it was
+    linearised at, one per key (GTSAM evaluates it in C++ at every iteration)."""
+    values = gtsam.Values()
+    for key, value in point:
+        values.insert(key, value)
+    return gtsam.LinearContainerFactor(linear, values)
 
 
 def _inliers(values: gtsam.Values, fixes: _Fixes, lever: np.ndarray, offset: float, sigma: np.ndarray,
@@ -492,11 +498,7 @@ def _bias_factor(gtsam: ModuleType, key_a: int, key_b: int, covariance: np.ndarr
     linear = gtsam.JacobianFactor(key_a, -np.eye(6) * weight, key_b, np.eye(6) * weight, SCALE,
                                   -np.diag(rate_change) * weight, -error * weight[:, 0],
                                   gtsam.noiseModel.Unit.Create(6))
-    point = gtsam.Values()
-    point.insert(key_a, bias_a)
-    point.insert(key_b, bias_b)
-    point.insert(SCALE, scale)
-    return gtsam.LinearContainerFactor(linear, point)
+    return _kept_linear(gtsam, linear, ((key_a, bias_a), (key_b, bias_b), (SCALE, scale)))
 
 
 def _copy_value(target: gtsam.Values, source: gtsam.Values, key: int) -> None:
