@@ -55,18 +55,12 @@ def _leaf_converter(annotation: Any, info: Any) -> Converter | None:
     """Conversion of one string for ``annotation`` with the parameter's settings ``info``, or None."""
     if info.parser is not None:
         return None
-    if annotation is bool:
-        def to_bool(value: Any, param: Any, ctx: Any) -> Any:
-            if type(value) is not bool:
+    if annotation in (bool, str):
+        def exact(value: Any, param: Any, ctx: Any) -> Any:
+            if type(value) is not annotation:
                 raise _NotPlainError
             return value
-        return to_bool
-    if annotation is str:
-        def to_str(value: Any, param: Any, ctx: Any) -> Any:
-            if type(value) is not str:
-                raise _NotPlainError
-            return value
-        return to_str
+        return exact
     if annotation in (int, float):
         if info.min is not None or info.max is not None or info.clamp:
             return None
