@@ -63,6 +63,11 @@ class FlightReduction:
         vector = info_post @ self.mean - info_prior @ self.prior_mean
         return information, vector
 
+    def own_estimate(self) -> tuple[np.ndarray, np.ndarray]:
+        """The flight's data-only estimate of the calibration and its sigma (4,) each: NaN where the data do not
+        observe a component (its information is below :data:`RANK_TOLERANCE` of the largest)."""
+        return _own_estimate(*self.data())
+
 
 @dataclass
 class CampaignEstimate:
@@ -119,11 +124,7 @@ def combine(reductions: dict[str, FlightReduction], configured_priors: dict[str,
     mean = covariance @ total_vec
     flights = {}
     for name, (information, vector) in data.items():
-        own_cov = np.linalg.pinv(information, rcond=RANK_TOLERANCE, hermitian=True)
-        own_mean = own_cov @ vector
-        observed = np.diag(information) > RANK_TOLERANCE * max(np.max(np.diag(information)), 1e-300)
-        own_sigma = np.where(observed, np.sqrt(np.clip(np.diag(own_cov), 0.0, None)), np.nan)
-        own_mean = np.where(observed, own_mean, np.nan)
+        own_mean, own_sigma = _own_estimate(information, vector)
         flights[name] = {"gnss_lever_arm_m": own_mean[:3], "gnss_lever_arm_sigma_m": own_sigma[:3],
                          "gnss_time_offset_s": own_mean[3], "gnss_time_offset_sigma_s": own_sigma[3],
                          "chi2": tests[name]["chi2"], "dof": tests[name]["dof"], "p_value": tests[name]["p_value"],
@@ -164,6 +165,15 @@ def _consistency(flight_data: tuple[np.ndarray, np.ndarray], total_info: np.ndar
     dof = int(np.linalg.matrix_rank(information, tol=RANK_TOLERANCE * max(np.max(np.abs(information)), 1e-300)))
     value = float(residual @ np.linalg.pinv(S, rcond=RANK_TOLERANCE, hermitian=True) @ residual)
     return {"chi2": value, "dof": dof, "p_value": float(chi2.sf(value, dof)) if dof else 1.0}
+
+
+def _own_estimate(information: np.ndarray, vector: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and sigma from information form (pseudo-inverse), NaN on the components the information leaves
+    unobserved."""
+    own_cov = np.linalg.pinv(information, rcond=RANK_TOLERANCE, hermitian=True)
+    observed = np.diag(information) > RANK_TOLERANCE * max(np.max(np.diag(information)), 1e-300)
+    own_sigma = np.where(observed, np.sqrt(np.clip(np.diag(own_cov), 0.0, None)), np.nan)
+    return np.where(observed, own_cov @ vector, np.nan), own_sigma
 
 
 def _distinct_priors(priors: dict[str, tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:

@@ -262,8 +262,36 @@ def check_rejected(nav: NavSolution, cfg: ProcessingConfig | None = None) -> Che
     return Check("rejected fixes", PASS, figures)
 
 
+def _lever_arm_differences(estimate: np.ndarray, sigma: np.ndarray, given: np.ndarray, given_sigma: np.ndarray,
+                           axes: np.ndarray) -> list[int]:
+    """Body axes (0, 1, 2) among ``axes`` where an estimated lever arm (``estimate`` +- ``sigma``, m) is off the
+    given one (``given`` +- ``given_sigma``): by more than :data:`LEVER_SIGMAS` of both sigmas and the floor, and
+    by more than the estimates' resolution."""
+    off = []
+    for k in np.flatnonzero(axes):
+        difference = abs(estimate[k] - given[k])
+        noise = LEVER_SIGMAS * float(np.sqrt(sigma[k] ** 2 + given_sigma[k] ** 2 + LEVER_FLOOR_M**2))
+        resolution = LEVER_RESOLUTION_M + LEVER_RESOLUTION_REL * abs(given[k])
+        if np.isfinite(difference) and difference > noise and difference > resolution:
+            off.append(int(k))
+    return off
+
+
+def _lever_arm_text(estimate: np.ndarray, sigma: np.ndarray) -> str:
+    return ", ".join(f"{e:.2f} +- {s:.2f}" for e, s in zip(estimate, sigma, strict=True))
+
+
+LEVER_ADVICE = ("Check for a typo, the sign (body axes x forward, y right, z down; z negative when the antenna is "
+                "above the IMU) and the axis order in --gnss-lever-arm / [mounting] lever_arm_gnss.")
+
+
 def check_lever_arm(nav: NavSolution) -> Check | None:
-    """``lever arm``: the calibration pass's lever arm against the configured one, per body axis."""
+    """``lever arm``: the calibration pass's lever arm against the configured one, per body axis
+    (``--method graph``: :func:`check_graph_lever_arm`)."""
+    graph = nav.info.get("graph_calibration") if isinstance(nav.info, dict) else None
+    if graph is not None and all(np.isfinite(np.asarray(value, float)).all() for value in graph.values()):
+        return check_graph_lever_arm(nav)
+    # not a graph, or a graph whose calibration marginal could not be computed (an ill-conditioned graph: NaN)
     diagnostics = nav.diagnostics
     if diagnostics is None or diagnostics.calibration is None:
         return None
@@ -271,22 +299,59 @@ def check_lever_arm(nav: NavSolution) -> Check | None:
     estimate = np.asarray(calibration.lever_arm, float)
     sigma = np.asarray(calibration.lever_arm_sigma, float)
     given = np.asarray(diagnostics.lever_arm_given, float)
-    problems = []
-    for k, axis in enumerate(AXES):
-        difference = abs(estimate[k] - given[k])
-        noise = LEVER_SIGMAS * float(np.hypot(sigma[k], LEVER_FLOOR_M))
-        resolution = LEVER_RESOLUTION_M + LEVER_RESOLUTION_REL * abs(given[k])
-        if np.isfinite(difference) and difference > noise and difference > resolution:
-            problems.append(f"GNSS lever arm {axis} ({AXIS_WORDS[axis]}): the data put the antenna at "
-                            f"{estimate[k]:.2f} +- {sigma[k]:.2f} m, the configuration says {given[k]:.2f} m")
-    both = ", ".join(f"{e:.2f} +- {s:.2f}" for e, s in zip(estimate, sigma, strict=True))
+    problems = [f"GNSS lever arm {AXES[k]} ({AXIS_WORDS[AXES[k]]}): the data put the antenna at {estimate[k]:.2f} "
+                f"+- {sigma[k]:.2f} m, the configuration says {given[k]:.2f} m"
+                for k in _lever_arm_differences(estimate, sigma, given, np.zeros(3), np.ones(3, bool))]
+    both = _lever_arm_text(estimate, sigma)
     if problems:
-        return Check("lever arm", FAIL, "; ".join(problems) + f" (estimate x, y, z: {both} m). Check for a typo, "
-                     "the sign (body axes x forward, y right, z down; z negative when the antenna is above the IMU) "
-                     "and the axis order in --gnss-lever-arm / [mounting] lever_arm_gnss.")
+        return Check("lever arm", FAIL, "; ".join(problems) + f" (estimate x, y, z: {both} m). " + LEVER_ADVICE)
     given_text = ", ".join(f"{g:.2f}" for g in given)
     return Check("lever arm", PASS, f"the GNSS lever arm the data show ({both} m) agrees with the configured "
                  f"{given_text} m")
+
+
+def check_graph_lever_arm(nav: NavSolution) -> Check | None:
+    """``lever arm`` (``--method graph``): what the flight's data alone say about the GNSS lever arm (the graph's
+    marginal on its calibration variable with the prior divided out, :class:`georef.campaign.FlightReduction`)
+    against the lever arm it was given, per body axis; and the graph's estimate against the EKF's calibration pass.
+
+    Axes given with a prior tighter than the free one (a configured lever arm, or a campaign's estimate) fail when
+    the data put the antenna elsewhere (same thresholds as :func:`check_lever_arm`). A lever arm not given is
+    estimated and applied by the graph: nothing to check it against but the EKF's calibration pass, which sees
+    the same data; when the two disagree the check warns."""
+    from georef.campaign import FlightReduction
+    from georef.fusion.graph import LEVER_ARM_FREE_SIGMA
+
+    reduction = FlightReduction.from_dict(nav.info["graph_calibration"])
+    own, own_sigma = reduction.own_estimate()
+    prior, prior_sigma = reduction.prior_mean[:3], np.sqrt(np.diag(reduction.prior_covariance))[:3]
+    applied, applied_sigma = reduction.mean[:3], np.sqrt(np.diag(reduction.covariance))[:3]
+    given = prior_sigma < LEVER_ARM_FREE_SIGMA
+    problems = [f"GNSS lever arm {AXES[k]} ({AXIS_WORDS[AXES[k]]}): the flight's data put the antenna at "
+                f"{own[k]:.2f} +- {own_sigma[k]:.2f} m, the configuration says {prior[k]:.2f} +- {prior_sigma[k]:.2f} m"
+                for k in _lever_arm_differences(own, own_sigma, prior, prior_sigma, given)]
+    graph_text = f"the graph applied {_lever_arm_text(applied, applied_sigma)} m (x, y, z)"
+    if problems:
+        return Check("lever arm", FAIL, "; ".join(problems) + f"; {graph_text}, pulled towards the configuration by "
+                     "its prior, so the frames are wrong by up to the difference. " + LEVER_ADVICE)
+    if given.all():
+        text = f"the GNSS lever arm the data show agrees with the configured one; {graph_text}"
+    elif given.any():
+        text = f"{graph_text}, estimated on the axes not given, agreeing with the configuration on the others"
+    else:
+        text = f"no GNSS lever arm given: {graph_text.replace('applied', 'estimated and applied')}"
+    diagnostics = nav.diagnostics
+    calibration = None if diagnostics is None else diagnostics.calibration
+    if calibration is None:
+        return Check("lever arm", PASS, text)
+    ekf, ekf_sigma = np.asarray(calibration.lever_arm, float), np.asarray(calibration.lever_arm_sigma, float)
+    ekf_text = f"the EKF's calibration pass puts it at {_lever_arm_text(ekf, ekf_sigma)} m"
+    apart = _lever_arm_differences(ekf, ekf_sigma, applied, applied_sigma, np.ones(3, bool))
+    if apart:
+        return Check("lever arm", WARN, f"{text}; {ekf_text}: the two differ on {', '.join(AXES[k] for k in apart)} "
+                     "although they see the same data, so one of them is wrong there. Compare the frames with "
+                     "--method rts and check the lever arm on the installation.")
+    return Check("lever arm", PASS, f"{text}; {ekf_text}, in agreement")
 
 
 def check_latency(nav: NavSolution, cfg: ProcessingConfig | None = None) -> Check | None:
