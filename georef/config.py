@@ -434,6 +434,24 @@ class ProcessingConfig:
             if not isinstance(getattr(self, name), kind):
                 raise TypeError(f"ProcessingConfig.{name} must be a {kind.__name__}, got {getattr(self, name)!r}")
 
+    def items(self) -> list[tuple[str, str, Any]]:
+        """Every setting as ``(section, flight.toml key, value)``, in ``flight.toml`` order (sections in the
+        order above, keys sorted); the tables ``pos_columns``, ``camera_columns`` and ``imu`` as one item each
+        whose key is the section's name and whose value is their ``dict``."""
+        out: list[tuple[str, str, Any]] = []
+        for section, kind in _SECTION_TYPES.items():
+            content = getattr(self, section)
+            if section in _MAP_SECTIONS:
+                out.append((section, section, getattr(content, _MAP_SECTIONS[section])))
+            else:
+                out += sorted((section, _key(f), getattr(content, f.name)) for f in fields(kind))
+        return out
+
+    def settings(self) -> dict[str, Any]:
+        """Every setting by its ``flight.toml`` key (``{"lever_arm_gnss": (...), "gnss_sigma": (...), ...}``), as
+        the run summaries list them; the ``[imu]`` table under ``imu_model``, its name in the summaries."""
+        return {("imu_model" if key == "imu" else key): value for _, key, value in self.items()}
+
     def updated(self, **changes: Any) -> ProcessingConfig:
         """A copy with the given settings changed (``None`` values are ignored). Name a setting by its
         ``flight.toml`` key (``gnss_sigma=(1, 1, 3)``, ``method="graph"``), a whole section by its name
@@ -609,16 +627,10 @@ def config_to_toml(cfg: ProcessingConfig) -> str:
             return "true" if value else "false"
         return _number(value) if isinstance(value, float) else str(value)
 
-    out = []
-    for section, kind in _SECTION_TYPES.items():
-        content = getattr(cfg, section)
+    blocks: dict[str, list[str]] = {}
+    for section, key, value in cfg.items():
         if section in _MAP_SECTIONS:
-            table = getattr(content, _MAP_SECTIONS[section])
-            if table:
-                out.append(f"[{section}]\n" + "\n".join(f"{k} = {fmt(v)}" for k, v in table.items()))
-            continue
-        rows = sorted((_key(f), getattr(content, f.name)) for f in fields(kind))
-        rows = [f"{key} = {fmt(value)}" for key, value in rows if value is not None]
-        if rows:
-            out.append(f"[{section}]\n" + "\n".join(rows))
-    return "\n\n".join(out) + "\n"
+            blocks[section] = [f"{k} = {fmt(v)}" for k, v in value.items()]
+        elif value is not None:
+            blocks.setdefault(section, []).append(f"{key} = {fmt(value)}")
+    return "\n\n".join(f"[{section}]\n" + "\n".join(rows) for section, rows in blocks.items() if rows) + "\n"

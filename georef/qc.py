@@ -164,7 +164,7 @@ def _gate(nav: NavSolution, cfg: ProcessingConfig | None) -> float:
     """The chi-square gate of the run (3 degrees of freedom)."""
     if nav.diagnostics is not None:
         return float(nav.diagnostics.gate_chi2)
-    return float(cfg.gate_chi2) if cfg is not None else DEFAULT_GATE
+    return float(cfg.gnss_gate.chi2) if cfg is not None else DEFAULT_GATE
 
 
 # ---- the checks --------------------------------------------------------------------------------------------------
@@ -295,7 +295,7 @@ def check_latency(nav: NavSolution, cfg: ProcessingConfig | None = None) -> Chec
     diagnostics = nav.diagnostics
     if diagnostics is None or diagnostics.calibration is None:
         return None
-    given = cfg.gnss_latency if cfg is not None else (diagnostics.latency_applied or None)
+    given = cfg.gnss.latency if cfg is not None else (diagnostics.latency_applied or None)
     if given is not None:
         return None
     value = float(diagnostics.calibration.latency)

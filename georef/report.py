@@ -330,7 +330,7 @@ def _innovations(result: ProcessResult) -> str:
     rejected = gnss.status == 0
     if rejected.any():
         ax.semilogy(gnss.time[rejected], statistic[rejected], "x", color="tab:red", ms=9, label="rejected")
-    gate = result.config.gate_chi2
+    gate = result.config.gnss_gate.chi2
     ax.axhline(gate, color="black", ls="--", label=f"χ² gate {gate:g}")
     ax.axhline(3.0, color="0.5", ls=":", label="expected mean 3")
     _shade_outages(ax, result, label=True)
@@ -654,9 +654,10 @@ def _provenance(result: ProcessResult, inputs: dict[str, Path | str | None] | No
                                                                                               f"{digest}</code>")))
     cfg = result.config
     diagnostics = result.nav.diagnostics
+    mount, gate = cfg.mounting, cfg.gnss_gate.chi2
     mounting: list[tuple[object, object]] = [
-        ("GNSS lever arm (IMU → antenna)", _triple(cfg.lever_arm_gnss, ("x", "y", "z"), "m (body: x forward, y right, "
-                                                                                          "z down)")),
+        ("GNSS lever arm (IMU → antenna)", _triple(mount.lever_arm_gnss, ("x", "y", "z"),
+                                                   "m (body: x forward, y right, z down)")),
     ]
     calibration = getattr(diagnostics, "calibration", None)
     if calibration is not None:
@@ -680,16 +681,16 @@ def _provenance(result: ProcessResult, inputs: dict[str, Path | str | None] | No
                 zip("xyz", info[f"graph_{sensor}_scale_ppm"], info[f"graph_{sensor}_scale_sigma_ppm"], strict=True))
                 + f" ppm (prior ± {prior:.0f} ppm; applied)"))
     mounting += [
-        ("camera lever arm (IMU → perspective centre)", _triple(cfg.lever_arm_camera, ("x", "y", "z"), "m (body)")),
-        ("boresight", _triple(cfg.boresight, ("roll", "pitch", "yaw"), "deg (C_c_b = Rz(yaw) Ry(pitch) Rx(roll))")),
-        ("GNSS σ given", _triple(cfg.gnss_sigma, ("N", "E", "U"), "m", 2)),
-        ("innovation gate", f"χ² {cfg.gate_chi2:g} on the 3-D position innovation ({_gate_probability(cfg.gate_chi2)}"
+        ("camera lever arm (IMU → perspective centre)", _triple(mount.lever_arm_camera, ("x", "y", "z"), "m (body)")),
+        ("boresight", _triple(mount.boresight, ("roll", "pitch", "yaw"), "deg (C_c_b = Rz(yaw) Ry(pitch) Rx(roll))")),
+        ("GNSS σ given", _triple(cfg.gnss.sigma, ("N", "E", "U"), "m", 2)),
+        ("innovation gate", f"χ² {gate:g} on the 3-D position innovation ({_gate_probability(gate)}"
                             " of good fixes pass)"),
-        ("GNSS latency applied", f"{_number(float(cfg.gnss_latency or 0.0))} s"
+        ("GNSS latency applied", f"{_number(float(cfg.gnss.latency or 0.0))} s"
          + (f"; the data show {_number(calibration.latency)} ± {_number(calibration.latency_sigma)} s (not applied)"
             if calibration is not None else "")),
-        ("camera trigger latency", f"{_number(float(cfg.camera_time_offset))} s"),
-        ("projected CRS", cfg.crs or "— (geographic coordinates only)"),
+        ("camera trigger latency", f"{_number(float(cfg.camera.time_offset))} s"),
+        ("projected CRS", cfg.output.crs or "— (geographic coordinates only)"),
     ]
     return (_table(rows)
             + "<h3>Input files</h3>" + _table(file_rows, header=("file", "path", "size", "SHA-256"))
@@ -723,15 +724,14 @@ _SETTING_UNITS = {
 
 def _settings(cfg: ProcessingConfig) -> str:
     rows = []
-    for f in dataclasses.fields(cfg):
-        value = getattr(cfg, f.name)
+    for name, value in cfg.settings().items():
         if value is None:
             shown = "— (not set)"
         elif isinstance(value, dict):
             shown = readable(value) if value else "none (defaults)"
         else:
             shown = readable(value)
-        rows.append((_Raw(f"<code>{html.escape(f.name)}</code>"), shown, _SETTING_UNITS.get(f.name, "")))
+        rows.append((_Raw(f"<code>{html.escape(name)}</code>"), shown, _SETTING_UNITS.get(name, "")))
     return ("<p>Every setting of the run (<code>flight.toml</code> and command-line options applied over the "
             "defaults).</p>" + _table(rows, header=("setting", "value", "unit")))
 

@@ -47,7 +47,8 @@ def test_axis_method_against_truth(tmp_path, seed):
     errors = frame_errors(table, flight.truth_frames)
     figures = accuracy(errors)
     nav = result.nav
-    baseline = gnss_interpolation_baseline(result.exposures, result.log.gnss, nav, processing)
+    baseline = gnss_interpolation_baseline(result.exposures, result.log.gnss, nav, processing.mounting,
+                                          processing.output)
     baseline_figures = accuracy(frame_errors(baseline, flight.truth_frames))
     assert figures["horizontal_rms_m"] < baseline_figures["horizontal_rms_m"]
 

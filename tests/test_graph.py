@@ -129,7 +129,7 @@ def test_graph_on_kitti_outages_with_ground_vehicle_constraints():
     is at most 1.0 m (0.88 m measured; 29.7 m without either). QC still fails it against the RTS: the free lever
     arm takes up the fixes' time-tag offset (0.5 m forward) and the attitudes differ by up to 31 of the graph's
     sigma after the longest run of interpolated IMU samples; the check must keep saying so."""
-    from georef.config import ProcessingConfig
+    from georef.config import GraphSettings, ProcessingConfig
     from georef.datasets.kitti import load_kitti, score_outages, subset, withheld
     from georef.fusion.graph import solve_graph_inputs
     from georef.fusion.ins import InsInputs
@@ -137,7 +137,8 @@ def test_graph_on_kitti_outages_with_ground_vehicle_constraints():
 
     log = load_kitti()
     fixes = subset(log.gnss, ~withheld(log.gnss_time))
-    nav = solve_graph_inputs(InsInputs(time=log.time, gyro=log.gyro, accel=log.accel, gnss=fixes), ProcessingConfig())
+    nav = solve_graph_inputs(InsInputs(time=log.time, gyro=log.gyro, accel=log.accel, gnss=fixes),
+                             GraphSettings.of(ProcessingConfig()))
     v = nav.valid
     score = score_outages(log, nav.time[v], np.degrees(nav.lat[v]), np.degrees(nav.lon[v]), nav.height[v],
                           np.sqrt(nav.pos_var_n[v, 0]), np.sqrt(nav.pos_var_n[v, 1]), 0)
