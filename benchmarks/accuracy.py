@@ -43,7 +43,7 @@ def main() -> None:
             baseline = gnss_interpolation_baseline(result.exposures, result.log.gnss, result.nav, cfg.mounting,
                                                    cfg.output)
             row["baseline_horizontal_m"] = accuracy(frame_errors(baseline, flight.truth_frames))["horizontal_rms_m"]
-            yaw = result.nav.info.get("yaw_offset")
+            yaw = result.nav.axis_info.yaw_offset if result.nav.axis_info is not None else None
             if yaw is not None:
                 truth = flight.truth_frames
                 true = np.interp(yaw.reference_time, truth["time"], truth["unit_yaw_offset"])

@@ -44,10 +44,10 @@ def one_flight(seed: int, duration: float, sigma: float, latency_sigma: float | 
         start = time.perf_counter()
         nav = solve_graph(read_pos(paths["POS.txt"]), cfg)
         seconds = time.perf_counter() - start
-    return {"seed": seed, "lever": np.asarray(nav.info["graph_lever_arm_m"], float),
-            "lever_sigma": np.asarray(nav.info["graph_lever_arm_sigma_m"], float),
-            "offset": float(nav.info["graph_time_offset_s"]),
-            "offset_sigma": float(nav.info["graph_time_offset_sigma_s"]),
+    return {"seed": seed, "lever": np.asarray(nav.graph_info.lever_arm_m, float),
+            "lever_sigma": np.asarray(nav.graph_info.lever_arm_sigma_m, float),
+            "offset": float(nav.graph_info.time_offset_s),
+            "offset_sigma": float(nav.graph_info.time_offset_sigma_s),
             "seconds": seconds}
 
 

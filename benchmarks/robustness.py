@@ -137,14 +137,14 @@ def graph_kitti(log: KittiLog, kept: GnssEpochs, rts_rms: float) -> None:
     v = nav.valid
     score = score_outages(log, nav.time[v], np.degrees(nav.lat[v]), np.degrees(nav.lon[v]), nav.height[v],
                           np.sqrt(nav.pos_var_n[v, 0]), np.sqrt(nav.pos_var_n[v, 1]), 0)
-    info = nav.info
+    info = nav.graph_info
     check = next(c for c in assess(nav).checks if c.name == "graph vs rts")
     print(f"  graph: horizontal RMS {score.fused_rms_m:.2f} m (rts {rts_rms:.2f} m); "
           f"claimed {score.claimed_rms_m:.2f} m; "
-          f"{info['graph_rejected_fixes']} of {info['graph_fixes']} fixes rejected by the robust pass; "
-          f"time offset {info['graph_time_offset_s'] * 1e3:.1f} +- {info['graph_time_offset_sigma_s'] * 1e3:.1f} ms, "
-          f"lever arm {np.round(info['graph_lever_arm_m'], 2)} +- {np.round(info['graph_lever_arm_sigma_m'], 2)} m; "
-          f"{info['graph_nhc_factors']} non-holonomic factors at {info['keyframes']} keyframes; {seconds:.1f} s")
+          f"{info.rejected_fixes} of {info.fixes} fixes rejected by the robust pass; "
+          f"time offset {info.time_offset_s * 1e3:.1f} +- {info.time_offset_sigma_s * 1e3:.1f} ms, "
+          f"lever arm {np.round(info.lever_arm_m, 2)} +- {np.round(info.lever_arm_sigma_m, 2)} m; "
+          f"{info.nhc_factors} non-holonomic factors at {info.keyframes} keyframes; {seconds:.1f} s")
     print(f"  graph vs rts: {check.status}: {check.message}")
 
 

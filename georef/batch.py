@@ -120,9 +120,8 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None,
         row["outputs"] += [{"what": "table" if k == 0 else "export", "format": spec.fmt, "path": str(spec.path)}
                            for k, spec in enumerate(specs)]
         summary = result.summary()
-        reduction = result.nav.info.get("graph_calibration")
-        if reduction is not None:
-            row["calibration"] = {key: np.asarray(value, float).tolist() for key, value in reduction.items()}
+        if result.nav.graph_info is not None:
+            row["calibration"] = result.nav.graph_info.calibration.as_lists()
         gnss = result.nav.gnss
         used = gnss.status >= 1
         nis = gnss.normalised_innovation_sq[used]

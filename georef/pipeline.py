@@ -72,7 +72,7 @@ class ProcessResult:
         ``--method axis`` (None otherwise); the heading source, the unit's yaw origin and the fitted noise those of
         the full-state filters (see :func:`solution_figures`)."""
         flags = self.table["flag"].astype(str)
-        yaw = self.nav.info.get("yaw_offset")
+        yaw = self.nav.axis_info.yaw_offset if self.nav.axis_info is not None else None
         gnss = self.nav.gnss
         summary: dict[str, object] = {
             "frames_written": len(self.table),
@@ -163,10 +163,9 @@ def solution_figures(nav: NavSolution, gnss: GnssSection) -> dict[str, object]:
         "vrw_m_s_sqrt_h": float(noise.vrw_h), "arw_deg_sqrt_h": float(noise.arw_h),
         "ground_vehicle": bool(diagnostics.ground_vehicle),
     }
-    origin = nav.info.get("unit_yaw_origin")
-    epoch_sigma = nav.info.get("epoch_sigma")
-    if diagnostics.unit_aiding and origin is not None and epoch_sigma is not None and len(epoch_sigma):
-        start = int(nav.info.get("start_row", 0))
+    ins_info = nav.ins_info
+    if diagnostics.unit_aiding and ins_info is not None and len(ins_info.epoch_sigma):
+        origin, epoch_sigma, start = ins_info.unit_yaw_origin, ins_info.epoch_sigma, int(ins_info.start_row)
         rows = np.flatnonzero(nav.valid & np.isfinite(origin))
         rows = rows[rows >= start]
         if len(rows):
@@ -176,18 +175,21 @@ def solution_figures(nav: NavSolution, gnss: GnssSection) -> dict[str, object]:
             if len(rows) > 1 and nav.time[rows[-1]] > nav.time[rows[0]]:
                 slope = np.polyfit(nav.time[rows] - nav.time[rows[0]], d, 1)[0]
                 figures["unit_yaw_drift_deg_per_min"] = float(np.degrees(slope) * 60.0)
-    if "graph_lever_arm_m" in nav.info:  # --method graph: the lever arm estimated with the trajectory
-        figures["graph_lever_arm_m"] = tuple(float(v) for v in nav.info["graph_lever_arm_m"])
-        figures["graph_lever_arm_sigma_m"] = tuple(float(v) for v in nav.info["graph_lever_arm_sigma_m"])
-        figures["graph_time_offset_s"] = float(nav.info["graph_time_offset_s"])
-        figures["graph_time_offset_sigma_s"] = float(nav.info["graph_time_offset_sigma_s"])
-        figures["graph_rejected_fixes"] = int(nav.info["graph_rejected_fixes"])
-    for key in ("graph_gyro_scale_ppm", "graph_gyro_scale_sigma_ppm", "graph_accel_scale_ppm",
-                "graph_accel_scale_sigma_ppm"):
-        if key in nav.info:
-            figures[key] = tuple(float(v) for v in nav.info[key])
-    if "graph_scale_prior_sigma_ppm" in nav.info:
-        figures["graph_scale_prior_sigma_ppm"] = float(nav.info["graph_scale_prior_sigma_ppm"])
+    graph = nav.graph_info
+    if graph is not None:  # --method graph: the lever arm estimated with the trajectory
+        figures["graph_lever_arm_m"] = tuple(float(v) for v in graph.lever_arm_m)
+        figures["graph_lever_arm_sigma_m"] = tuple(float(v) for v in graph.lever_arm_sigma_m)
+        figures["graph_time_offset_s"] = float(graph.time_offset_s)
+        figures["graph_time_offset_sigma_s"] = float(graph.time_offset_sigma_s)
+        figures["graph_rejected_fixes"] = int(graph.rejected_fixes)
+        scale = graph.scale_factors
+        if scale is not None:
+            for key, values in (("graph_gyro_scale_ppm", scale.gyro_ppm),
+                                ("graph_gyro_scale_sigma_ppm", scale.gyro_sigma_ppm),
+                                ("graph_accel_scale_ppm", scale.accel_ppm),
+                                ("graph_accel_scale_sigma_ppm", scale.accel_sigma_ppm)):
+                figures[key] = tuple(float(v) for v in values)
+            figures["graph_scale_prior_sigma_ppm"] = float(scale.prior_sigma_ppm)
     return figures
 
 

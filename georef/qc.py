@@ -76,7 +76,7 @@ LATENCY_SIGMAS = 3.0
 LATENCY_MIN_S = 0.02
 #: frames: more than this share outside the navigation span fails
 OUTSIDE_FAIL_SHARE = 0.5
-#: the default chi-square gate of a 3-D GNSS innovation (ProcessingConfig.gate_chi2)
+#: the default chi-square gate of a 3-D GNSS innovation (ProcessingConfig.gnss_gate.chi2, flight.toml's gate_chi2)
 DEFAULT_GATE = 16.27
 
 AXES = ("x", "y", "z")
@@ -361,10 +361,12 @@ GRAPH_SEPARATION_SHARE = 0.02
 def check_graph_separation(nav: NavSolution) -> Check | None:
     """``graph vs rts`` (``--method graph``): the graph smoother against the EKF + RTS solution it started from,
     horizontal position and attitude, at its keyframes."""
-    info = nav.info if isinstance(nav.info, dict) else {}
-    parts = [(what, np.asarray(info[key], float)) for what, key in
-             (("horizontal positions", "graph_rts_separation_sigma"),
-              ("attitudes", "graph_rts_attitude_separation_sigma")) if info.get(key) is not None and len(info[key])]
+    graph = nav.graph_info
+    if graph is None:
+        return None
+    parts = [(what, np.asarray(values, float)) for what, values in
+             (("horizontal positions", graph.rts_separation_sigma),
+              ("attitudes", graph.rts_attitude_separation_sigma)) if values is not None and len(values)]
     if not parts:
         return None
     texts, failed = [], False

@@ -435,16 +435,16 @@ def _gaps_table(gaps: list[tuple[float, float]]) -> str:
 
 
 def _biases(result: ProcessResult) -> str | None:
-    info = result.nav.info
-    if "gyro_bias" not in info:
+    info = result.nav.ins_info
+    if info is None:
         return None
     v = np.flatnonzero(result.nav.valid)
     v = v[:: _stride(len(v))]
     t = result.nav.time[v]
     fig, axes = plt.subplots(2, 1, figsize=(11, 5.5), sharex=True)
     for k, axis in enumerate("xyz"):
-        axes[0].plot(t, np.degrees(info["gyro_bias"][v, k]) * 3600.0, color=_COLOURS[k], label=axis)
-        axes[1].plot(t, info["accel_bias"][v, k] / STANDARD_GRAVITY * 1000.0, color=_COLOURS[k], label=axis)
+        axes[0].plot(t, np.degrees(info.gyro_bias[v, k]) * 3600.0, color=_COLOURS[k], label=axis)
+        axes[1].plot(t, info.accel_bias[v, k] / STANDARD_GRAVITY * 1000.0, color=_COLOURS[k], label=axis)
     axes[0].set_ylabel("gyro bias [deg/h]")
     axes[1].set_ylabel("accelerometer bias [mg]")
     axes[0].legend(fontsize=8, ncol=3, loc="upper right")
@@ -455,18 +455,19 @@ def _biases(result: ProcessResult) -> str | None:
 def _yaw_offset(result: ProcessResult) -> str | None:
     """The POS unit's yaw origin: the axis method's followed offset, or the full-state filter's smoothed origin
     state with its sigma (and the windows recovered from IACC that gave its prior, when there were)."""
-    info = result.nav.info
-    solution = info.get("yaw_offset")
-    diagnostics = result.nav.diagnostics
-    origin = info.get("unit_yaw_origin")
-    if solution is None and diagnostics is not None and origin is not None and diagnostics.unit_aiding:
+    nav = result.nav
+    solution = nav.axis_info.yaw_offset if nav.axis_info is not None else None
+    diagnostics = nav.diagnostics
+    ins_info = nav.ins_info
+    if solution is None and diagnostics is not None and ins_info is not None and diagnostics.unit_aiding:
+        origin = ins_info.unit_yaw_origin
         solution = getattr(diagnostics.alignment, "yaw_offset", None)
         rows = np.flatnonzero(result.nav.valid & np.isfinite(origin))
         if len(rows) == 0:
             return None
         from georef.fusion.ins_layout import UNIT_YAW
 
-        epoch_rows, epoch_sigma = info.get("epoch_rows"), info.get("epoch_sigma")
+        epoch_rows, epoch_sigma = ins_info.epoch_rows, ins_info.epoch_sigma
         value = np.unwrap(np.asarray(origin, float)[rows])
         t = result.nav.time[rows]
         fig, ax = plt.subplots(figsize=(11, 3.8))
@@ -664,21 +665,23 @@ def _provenance(result: ProcessResult, inputs: dict[str, Path | str | None] | No
         mounting.append(("GNSS lever arm the data show", ", ".join(
             f"{a} {_number(float(v))} ± {_number(float(s))}" for a, v, s in
             zip("xyz", calibration.lever_arm, calibration.lever_arm_sigma, strict=True)) + " m (not applied)"))
-    info = result.nav.info
-    if "graph_lever_arm_m" in info:  # --method graph: the calibration estimated with the trajectory (applied)
+    graph = result.nav.graph_info
+    if graph is not None:  # --method graph: the calibration estimated with the trajectory (applied)
         mounting.append(("GNSS lever arm the graph estimated", ", ".join(
             f"{a} {_number(float(v))} ± {_number(float(s))}" for a, v, s in
-            zip("xyz", info["graph_lever_arm_m"], info["graph_lever_arm_sigma_m"], strict=True))
+            zip("xyz", graph.lever_arm_m, graph.lever_arm_sigma_m, strict=True))
             + " m (applied: the trajectory was solved with it)"))
         mounting.append(("GNSS time offset the graph estimated",
-                         f"{_number(1e3 * float(info['graph_time_offset_s']))} ± "
-                         f"{_number(1e3 * float(info['graph_time_offset_sigma_s']))} ms (applied)"))
-    for sensor, name in (("gyro", "gyro"), ("accel", "accelerometer")):
-        if f"graph_{sensor}_scale_ppm" in info:
-            prior = float(info["graph_scale_prior_sigma_ppm"])
+                         f"{_number(1e3 * float(graph.time_offset_s))} ± "
+                         f"{_number(1e3 * float(graph.time_offset_sigma_s))} ms (applied)"))
+    scale = graph.scale_factors if graph is not None else None
+    if scale is not None:
+        prior = float(scale.prior_sigma_ppm)
+        for name, values, sigmas in (("gyro", scale.gyro_ppm, scale.gyro_sigma_ppm),
+                                     ("accelerometer", scale.accel_ppm, scale.accel_sigma_ppm)):
             mounting.append((f"{name} scale factors the graph estimated", ", ".join(
                 f"{a} {v:.0f} ± {s:.0f}" + (" (not observed)" if s > 0.8 * prior else "") for a, v, s in
-                zip("xyz", info[f"graph_{sensor}_scale_ppm"], info[f"graph_{sensor}_scale_sigma_ppm"], strict=True))
+                zip("xyz", values, sigmas, strict=True))
                 + f" ppm (prior ± {prior:.0f} ppm; applied)"))
     mounting += [
         ("camera lever arm (IMU → perspective centre)", _triple(mount.lever_arm_camera, ("x", "y", "z"), "m (body)")),

@@ -171,7 +171,7 @@ def _alignment_of(sim: SimConfig, tmp_path):
     flight = simulate(sim)
     paths = write_flight(flight, tmp_path)
     inputs = inputs_from_pos(read_pos(paths["POS.txt"]), use_unit_attitude=False)
-    cfg = installation_config(flight)
+    cfg = InsSettings.of(installation_config(flight))
     return flight, inputs, cfg
 
 

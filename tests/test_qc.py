@@ -42,7 +42,7 @@ def clean(flight_dir, flight_defaults) -> ProcessResult:
 def typo(flight_dir, flight_defaults) -> ProcessResult:
     """The same flight with a 45 m typo in the GNSS lever arm's x."""
     _, paths = flight_dir
-    assert tuple(flight_defaults.lever_arm_gnss) == TRUE_LEVER
+    assert tuple(flight_defaults.mounting.lever_arm_gnss) == TRUE_LEVER
     return process(paths["POS.txt"], paths["Kamera.txt"], flight_defaults.updated(lever_arm_gnss=(45.0, 0.15, -1.65)))
 
 
@@ -218,7 +218,7 @@ def test_latency_warns_only_when_significant_and_not_given(clean):
         nav = dataclasses.replace(clean.nav, diagnostics=dataclasses.replace(diagnostics, calibration=calibration))
         return _by_name(assess(nav, clean.table, cfg or clean.config)).get("latency")
 
-    assert clean.config.gnss_latency is None
+    assert clean.config.gnss.latency is None
     significant = check(0.15, 0.02)
     assert significant.status == "warn" and "--gnss-latency 0.150" in significant.message
     assert check(0.015, 0.001).status == "pass"       # many sigmas, but under 0.02 s

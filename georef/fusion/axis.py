@@ -21,7 +21,7 @@ from georef.config import AxisSettings
 from georef.frames import C_e_n, C_n_e, ecef_to_geodetic, euler_to_dcm, geodetic_to_ecef, wrap_pi
 from georef.frames.mounting import lever_arm_ecef
 from georef.frames.rotations import attitude_at
-from georef.fusion.solution import GnssUse, NavSolution, ecef_variances_to_ned, ned_variances_to_ecef
+from georef.fusion.solution import AxisInfo, GnssUse, NavSolution, ecef_variances_to_ned, ned_variances_to_ecef
 from georef.fusion.yaw_offset import recover_yaw_offset
 from georef.imu_errors import white_noise_sigma
 from georef.io.errors import GeorefError
@@ -97,5 +97,5 @@ def solve_axis(log: PosLog, cfg: AxisSettings) -> NavSolution:
         yaw=yaw, pos_var_n=pos_var_n, att_sigma=att_sigma, valid=valid,
         gnss=GnssUse(time=gnss.time, status=full_status, innovation=full_innov, innovation_var=full_var,
                      line=gnss.line, nis=full_nis),
-        info={"yaw_offset": yaw_solution, "accel_sigma_n": sigma_acc_n},
+        axis_info=AxisInfo(yaw_offset=yaw_solution, accel_sigma_n=sigma_acc_n),
     )

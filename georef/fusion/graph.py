@@ -59,7 +59,7 @@ from georef.frames.rotations import (
 from georef.fusion.increments import compensated_rates
 from georef.fusion.ins import InsInputs, _gap_scale, inputs_from_pos, solve_ins, unit_drift_psd
 from georef.fusion.ins_layout import NHC_GATE, NHC_LEVER
-from georef.fusion.solution import NavSolution
+from georef.fusion.solution import GraphCalibration, GraphInfo, NavSolution, ScaleFactors
 
 if TYPE_CHECKING:  # gtsam is imported where it is used; importing this module needs no gtsam
     import gtsam
@@ -108,8 +108,6 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings, noise_lever: np.nd
     # ``noise_lever``, the robust pass's estimate when that differs from the configured one (:func:`_noise_refit`)
     rts_lever = np.asarray(cfg.lever_arm_gnss if noise_lever is None else noise_lever, float)
     rts = solve_ins(inputs, cfg if noise_lever is None else cfg.with_lever_arm(noise_lever), smooth=True)
-    if noise_lever is not None:
-        rts.info["graph_noise_refit_lever_arm_m"] = rts_lever
     t = rts.time
     valid_rows = np.flatnonzero(rts.valid)
     gnss = inputs.gnss
@@ -137,7 +135,7 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings, noise_lever: np.nd
     C_b_t = C_n_t_rows @ euler_to_dcm(rts.roll, rts.pitch, rts.yaw)
     p_t = to_plane(rts.r_e)
     v_t = rts.v_e @ C_e_t.T  # ECEF velocity into the tangent plane
-    gyro_bias, accel_bias = rts.info["gyro_bias"], rts.info["accel_bias"]
+    gyro_bias, accel_bias = rts.ins_info.gyro_bias, rts.ins_info.accel_bias
     for k, row in enumerate(key_rows):
         values.insert(X(k), gtsam.Pose3(gtsam.Rot3(C_b_t[row]), p_t[row]))
         values.insert(V(k), v_t[row])
@@ -274,7 +272,6 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings, noise_lever: np.nd
     valid = rts.valid.copy()  # rows beyond the end keyframes (< MIN_EDGE_GAP) take the end keyframes' corrections
     for array in (r_e, v_e, pos_var_rows, att_sigma):
         array[~valid] = np.nan
-    info = dict(rts.info)
     # the graph against the RTS it started from, in units of the graph's own horizontal sigma at each keyframe:
     # both smoothers carry the same information, so a separation of several sigma means one of them went wrong
     separation = np.hypot(d_pos[:, 0], d_pos[:, 1]) / np.sqrt(pos_var[:, 0] + pos_var[:, 1])
@@ -284,24 +281,24 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings, noise_lever: np.nd
     attitude_separation = np.max(np.abs(d_rot_n) / np.sqrt(np.diagonal(att_cov, axis1=1, axis2=2)), axis=1)
     estimate = np.asarray(result.atVector(CALIBRATION), float)
     covariance = marginals.marginalCovariance(CALIBRATION)
+    scale_factors = None
     if scale_sigma > 0:
         scale, scale_sigmas = np.asarray(result.atVector(SCALE), float), np.sqrt(np.diag(
             marginals.marginalCovariance(SCALE)))
-        info.update({"graph_accel_scale_ppm": scale[:3] * 1e6, "graph_accel_scale_sigma_ppm": scale_sigmas[:3] * 1e6,
-                     "graph_gyro_scale_ppm": scale[3:] * 1e6, "graph_gyro_scale_sigma_ppm": scale_sigmas[3:] * 1e6,
-                     "graph_scale_prior_sigma_ppm": scale_sigma * 1e6})
-    info.update({"graph_lever_arm_m": estimate[:3], "graph_lever_arm_sigma_m": np.sqrt(np.diag(covariance)[:3]),
-                 "graph_time_offset_s": float(estimate[3]),
-                 "graph_time_offset_sigma_s": float(np.sqrt(covariance[3, 3])),
-                 "graph_calibration": {"mean": estimate, "covariance": covariance, "prior_mean": prior_mean,
-                                       "prior_covariance": prior_cov},
-                 "graph_rejected_fixes": int(np.sum(~inlier)), "graph_fixes": len(inlier),
-                 "graph_rts_separation_sigma": separation,
-                 "graph_rts_attitude_separation_sigma": attitude_separation, "keyframes": n_keys,
-                 "graph_nhc_factors": len(nhc_sigma), "graph_error_final": graph.error(result)})
+        scale_factors = ScaleFactors(accel_ppm=scale[:3] * 1e6, accel_sigma_ppm=scale_sigmas[:3] * 1e6,
+                                     gyro_ppm=scale[3:] * 1e6, gyro_sigma_ppm=scale_sigmas[3:] * 1e6,
+                                     prior_sigma_ppm=scale_sigma * 1e6)
+    info = GraphInfo(lever_arm_m=estimate[:3], lever_arm_sigma_m=np.sqrt(np.diag(covariance)[:3]),
+                     time_offset_s=float(estimate[3]), time_offset_sigma_s=float(np.sqrt(covariance[3, 3])),
+                     calibration=GraphCalibration(mean=estimate, covariance=covariance, prior_mean=prior_mean,
+                                                  prior_covariance=prior_cov),
+                     rejected_fixes=int(np.sum(~inlier)), fixes=len(inlier), rts_separation_sigma=separation,
+                     rts_attitude_separation_sigma=attitude_separation, keyframes=n_keys,
+                     nhc_factors=len(nhc_sigma), error_final=graph.error(result), scale_factors=scale_factors,
+                     noise_refit_lever_arm_m=rts_lever if noise_lever is not None else None)
     return NavSolution(method="graph", time=t, r_e=r_e, v_e=v_e, lat=lat, lon=lon, height=height, roll=roll,
                        pitch=pitch, yaw=yaw, pos_var_n=pos_var_rows, att_sigma=att_sigma, valid=valid, gnss=rts.gnss,
-                       info=info, att_cov_n=att_cov_rows, diagnostics=rts.diagnostics)
+                       ins_info=rts.ins_info, graph_info=info, att_cov_n=att_cov_rows, diagnostics=rts.diagnostics)
 
 
 class _QrMarginals:
@@ -643,7 +640,7 @@ def _add_ground_vehicle(gtsam: ModuleType, X: Symbol, V: Symbol, rts: NavSolutio
                         key_rows: np.ndarray, values: gtsam.Values,
                         factors_at: dict[int, list]) -> dict[int, np.ndarray]:
     """Non-holonomic factors (:func:`_nhc_factor`) at every keyframe when the EKF + RTS applied the constraint
-    (``cfg.vehicle = "ground"``, or ``"auto"`` and its ground-vehicle test passed), with its variances: the fitted
+    (``cfg.ins.vehicle = "ground"``, or ``"auto"`` and its ground-vehicle test passed), with its variances: the fitted
     ``r_nhc`` [m^2/s^2] plus, as the EKF, the IMU's motion about the point ``NHC_LEVER`` [m] away where the
     constraint holds (yaw rate for the lateral, pitch rate for the vertical; gyro minus the RTS gyro bias).
     Keyframes where the RTS solution itself violates the constraint beyond the EKF's gate (a skid) get none.
@@ -651,7 +648,7 @@ def _add_ground_vehicle(gtsam: ModuleType, X: Symbol, V: Symbol, rts: NavSolutio
     if not rts.diagnostics.ground_vehicle:
         return {}
     r_nhc = rts.diagnostics.noise.r_nhc
-    rate = gyro[key_rows] - rts.info["gyro_bias"][key_rows]
+    rate = gyro[key_rows] - rts.ins_info.gyro_bias[key_rows]
     sigma = np.sqrt(r_nhc + (NHC_LEVER * rate[:, [2, 1]]) ** 2)
     added = {}
     for k in range(len(key_rows)):

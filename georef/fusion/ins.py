@@ -52,7 +52,7 @@ from georef.fusion.noise import (
     inflated,
     starting_point,
 )
-from georef.fusion.solution import ForwardSeparation, GnssUse, NavSolution
+from georef.fusion.solution import ForwardSeparation, GnssUse, InsInfo, NavSolution
 from georef.io.errors import GeorefError
 from georef.kernels import load as load_kernel
 
@@ -84,7 +84,7 @@ EM_ITERATIONS = 5
 EM_TOLERANCE = 0.05
 #: when the estimation's first smoothed pass diverges, its process noise is raised tenfold up to this many times
 INFLATE_TRIES = 4
-#: ground-vehicle test (``cfg.vehicle = "auto"``): speed [m/s], median lateral/speed, rms vertical body
+#: ground-vehicle test (``cfg.ins.vehicle = "auto"``): speed [m/s], median lateral/speed, rms vertical body
 #: velocity [m/s], share of the log moving
 GROUND_MIN_SPEED = 3.0
 GROUND_MAX_SLIP = 0.03
@@ -1027,16 +1027,16 @@ def solve_ins(inputs: InsInputs, cfg: InsSettings, smooth: bool = True) -> NavSo
         estimation_passes=estimation.passes, ground_vehicle=estimation.nhc, ground_test=estimation.ground_test,
         cross_validation=estimation.cv_scores,
         imu_gaps=[(float(t[a]), float(t[b])) for a, b in inputs.gaps])
-    info = {"vel_var_n": vel_var, "gyro_bias": states[:, layout.X_BG:layout.X_BG + 3],
-            "accel_bias": states[:, layout.X_BA:layout.X_BA + 3], "unit_yaw_origin": states[:, layout.X_UNIT_YAW],
-            "epoch_rows": final.ep_row, "epoch_sigma": epoch_sigma, "start_row": start_row,
-            "smoothed": smooth, "heading_source": alignment.heading_source, "unit_aiding": aiding}
+    info = InsInfo(vel_var_n=vel_var, gyro_bias=states[:, layout.X_BG:layout.X_BG + 3],
+                   accel_bias=states[:, layout.X_BA:layout.X_BA + 3], unit_yaw_origin=states[:, layout.X_UNIT_YAW],
+                   epoch_rows=final.ep_row, epoch_sigma=epoch_sigma, start_row=start_row,
+                   smoothed=smooth, heading_source=alignment.heading_source, unit_aiding=aiding)
     return NavSolution(
         method="rts" if smooth else "ekf", time=t, r_e=r_e, v_e=v_e, lat=lat, lon=lon, height=height,
         roll=angles[:, 0], pitch=angles[:, 1], yaw=angles[:, 2], pos_var_n=pos_var, att_sigma=att_sigma, valid=valid,
         gnss=GnssUse(time=gnss.time, status=full_status, innovation=full_innov, innovation_var=full_var,
                      line=gnss.line, nis=full_nis),
-        info=info, att_cov_n=att_cov, diagnostics=diagnostics, forward=forward_separation(t, final),
+        ins_info=info, att_cov_n=att_cov, diagnostics=diagnostics, forward=forward_separation(t, final),
     )
 
 
