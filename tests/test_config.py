@@ -176,3 +176,11 @@ def test_solver_settings_hold_only_their_sections():
     assert type(graph.with_lever_arm((0, 0, 0))) is GraphSettings
     axis = AxisSettings.of(cfg)
     assert axis.axis == cfg.axis and not hasattr(axis, "ins")
+
+
+def test_a_calibration_prior_is_refused_by_the_methods_without_one(tmp_path):
+    from georef.pipeline import process
+
+    prior = ([0.4, 0.1, -1.6, 0.0], [[0.01, 0, 0, 0], [0, 0.01, 0, 0], [0, 0, 0.01, 0], [0, 0, 0, 1e-6]])
+    with pytest.raises(ValueError, match="needs method 'graph'"):
+        process(tmp_path / "POS.txt", tmp_path / "Kamera.txt", ProcessingConfig(), calibration_prior=prior)
