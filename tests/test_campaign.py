@@ -127,7 +127,7 @@ def test_batch_shared_calibration_end_to_end(tmp_path):
         flight = simulate(replace(sim, plan=replace(sim.plan, duration_s=90.0)))
         folder = tmp_path / "flights" / f"f{seed}"
         write_flight(flight, folder)
-        cfg = replace(processing_config_for(flight), lever_arm_gnss=(0.0, 0.0, 0.0), gnss_sigma=(0.02, 0.02, 0.04))
+        cfg = processing_config_for(flight).updated(lever_arm_gnss=(0.0, 0.0, 0.0), gnss_sigma=(0.02, 0.02, 0.04))
         (folder / "flight.toml").write_text(config_to_toml(cfg), encoding="utf-8")
     out = tmp_path / "out"
     runner = CliRunner()
