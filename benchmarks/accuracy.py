@@ -40,9 +40,10 @@ def main() -> None:
             result = process(paths["POS.txt"], paths["Kamera.txt"], cfg)
             errors = frame_errors(result.table, flight.truth_frames)
             row = {"seed": seed, "method": method, **accuracy(errors)}
-            baseline = gnss_interpolation_baseline(result.exposures, result.log.gnss, result.nav, cfg)
+            baseline = gnss_interpolation_baseline(result.exposures, result.log.gnss, result.nav, cfg.mounting,
+                                                   cfg.output)
             row["baseline_horizontal_m"] = accuracy(frame_errors(baseline, flight.truth_frames))["horizontal_rms_m"]
-            yaw = result.nav.info.get("yaw_offset")
+            yaw = result.nav.axis_info.yaw_offset if result.nav.axis_info is not None else None
             if yaw is not None:
                 truth = flight.truth_frames
                 true = np.interp(yaw.reference_time, truth["time"], truth["unit_yaw_offset"])

@@ -22,7 +22,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 from types import SimpleNamespace  # noqa: E402
 
-from georef.config import load_config  # noqa: E402
+from georef.config import InsSettings, load_config  # noqa: E402
 from georef.fusion.ins import inputs_from_pos, solve_ins  # noqa: E402
 from georef.io.pos import read_pos  # noqa: E402
 from georef.sim.files import write_flight  # noqa: E402
@@ -103,7 +103,7 @@ def main() -> None:
         minutes, rate = (float(x) for x in case.split(":"))
         folder = ensure_flight(args.folder / f"{minutes:g}min_{rate:g}hz", minutes, rate)
         print(f"{minutes:g} min at {rate:g} Hz:")
-        cfg = load_config(folder / "flight.toml")
+        cfg = InsSettings.of(load_config(folder / "flight.toml"))
         log = read_pos(folder / "POS.txt", gnss_rate_hz=1.0)
         inputs = inputs_from_pos(log)
         solve_ins(inputs, cfg, smooth=True)  # warm the numba cache

@@ -37,17 +37,17 @@ def one_flight(seed: int, duration: float, sigma: float, latency_sigma: float | 
     flight = simulate(sim)
     with tempfile.TemporaryDirectory() as tmp:
         paths = write_flight(flight, tmp)
-        cfg = replace(processing_config_for(flight), lever_arm_gnss=(0.0, 0.0, 0.0),
-                      gnss_sigma=(sigma, sigma, 2 * sigma), method="graph")
+        cfg = processing_config_for(flight).updated(lever_arm_gnss=(0.0, 0.0, 0.0),
+                                                    gnss_sigma=(sigma, sigma, 2 * sigma), method="graph")
         if latency_sigma is not None:
-            cfg = replace(cfg, gnss_latency=0.0, gnss_latency_sigma=latency_sigma)
+            cfg = cfg.updated(gnss_latency=0.0, gnss_latency_sigma=latency_sigma)
         start = time.perf_counter()
         nav = solve_graph(read_pos(paths["POS.txt"]), cfg)
         seconds = time.perf_counter() - start
-    return {"seed": seed, "lever": np.asarray(nav.info["graph_lever_arm_m"], float),
-            "lever_sigma": np.asarray(nav.info["graph_lever_arm_sigma_m"], float),
-            "offset": float(nav.info["graph_time_offset_s"]),
-            "offset_sigma": float(nav.info["graph_time_offset_sigma_s"]),
+    return {"seed": seed, "lever": np.asarray(nav.graph_info.lever_arm_m, float),
+            "lever_sigma": np.asarray(nav.graph_info.lever_arm_sigma_m, float),
+            "offset": float(nav.graph_info.time_offset_s),
+            "offset_sigma": float(nav.graph_info.time_offset_sigma_s),
             "seconds": seconds}
 
 

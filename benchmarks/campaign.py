@@ -38,8 +38,8 @@ def make_campaign(root: Path, flights: int, duration: float, sigma: float, moved
         flight = simulate(sim)
         folder = root / f"flight{seed:02d}"
         write_flight(flight, folder)
-        cfg = replace(processing_config_for(flight), lever_arm_gnss=(0.0, 0.0, 0.0),
-                      gnss_sigma=(sigma, sigma, 2 * sigma), method="graph")
+        cfg = processing_config_for(flight).updated(lever_arm_gnss=(0.0, 0.0, 0.0),
+                                                    gnss_sigma=(sigma, sigma, 2 * sigma), method="graph")
         (folder / "flight.toml").write_text(config_to_toml(cfg), encoding="utf-8")
 
 

@@ -95,14 +95,15 @@ def _run(jobs: list[tuple[str, int]], workers: int) -> list[dict]:
 
 
 def kitti(with_gtsam: bool) -> None:
-    from georef.config import ProcessingConfig
+    from georef.config import InsSettings, ProcessingConfig
     from georef.datasets.kitti import load_kitti, score_outages, subset, withheld
     from georef.fusion.ins import InsInputs, solve_ins
 
     log = load_kitti()
     kept = subset(log.gnss, ~withheld(log.gnss_time))
     start = time.perf_counter()
-    nav = solve_ins(InsInputs(time=log.time, gyro=log.gyro, accel=log.accel, gnss=kept), ProcessingConfig())
+    nav = solve_ins(InsInputs(time=log.time, gyro=log.gyro, accel=log.accel, gnss=kept),
+                    InsSettings.of(ProcessingConfig()))
     seconds = time.perf_counter() - start
     v = nav.valid
     score = score_outages(log, nav.time[v], np.degrees(nav.lat[v]), np.degrees(nav.lon[v]), nav.height[v],
@@ -123,26 +124,27 @@ def graph_kitti(log: KittiLog, kept: GnssEpochs, rts_rms: float) -> None:
     """``--method graph`` on the same KITTI protocol, beside the rts figure: horizontal RMS at the withheld fixes,
     claimed sigma, GNSS fixes the robust pass rejected, the time offset and lever arm estimated, ground-vehicle
     factors, QC verdict of ``graph vs rts``, runtime (rts included, which the graph runs first)."""
-    from georef.config import ProcessingConfig
+    from georef.config import GraphSettings, ProcessingConfig
     from georef.datasets.kitti import score_outages
     from georef.fusion.graph import solve_graph_inputs
     from georef.fusion.ins import InsInputs
     from georef.qc import assess
 
     start = time.perf_counter()
-    nav = solve_graph_inputs(InsInputs(time=log.time, gyro=log.gyro, accel=log.accel, gnss=kept), ProcessingConfig())
+    nav = solve_graph_inputs(InsInputs(time=log.time, gyro=log.gyro, accel=log.accel, gnss=kept),
+                             GraphSettings.of(ProcessingConfig()))
     seconds = time.perf_counter() - start
     v = nav.valid
     score = score_outages(log, nav.time[v], np.degrees(nav.lat[v]), np.degrees(nav.lon[v]), nav.height[v],
                           np.sqrt(nav.pos_var_n[v, 0]), np.sqrt(nav.pos_var_n[v, 1]), 0)
-    info = nav.info
+    info = nav.graph_info
     check = next(c for c in assess(nav).checks if c.name == "graph vs rts")
     print(f"  graph: horizontal RMS {score.fused_rms_m:.2f} m (rts {rts_rms:.2f} m); "
           f"claimed {score.claimed_rms_m:.2f} m; "
-          f"{info['graph_rejected_fixes']} of {info['graph_fixes']} fixes rejected by the robust pass; "
-          f"time offset {info['graph_time_offset_s'] * 1e3:.1f} +- {info['graph_time_offset_sigma_s'] * 1e3:.1f} ms, "
-          f"lever arm {np.round(info['graph_lever_arm_m'], 2)} +- {np.round(info['graph_lever_arm_sigma_m'], 2)} m; "
-          f"{info['graph_nhc_factors']} non-holonomic factors at {info['keyframes']} keyframes; {seconds:.1f} s")
+          f"{info.rejected_fixes} of {info.fixes} fixes rejected by the robust pass; "
+          f"time offset {info.time_offset_s * 1e3:.1f} +- {info.time_offset_sigma_s * 1e3:.1f} ms, "
+          f"lever arm {np.round(info.lever_arm_m, 2)} +- {np.round(info.lever_arm_sigma_m, 2)} m; "
+          f"{info.nhc_factors} non-holonomic factors at {info.keyframes} keyframes; {seconds:.1f} s")
     print(f"  graph vs rts: {check.status}: {check.message}")
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-from georef.config import ProcessingConfig
+from georef.config import GnssSection, MountingSection, OutputSection, ProcessingConfig, ProcessingSection
 from georef.evaluate import accuracy, frame_errors
 from georef.io.eo_table import write_eo_csv
 from georef.pipeline import process
@@ -23,13 +23,16 @@ def main() -> None:
     paths = write_flight(flight, folder)
 
     # The installation, as a photogrammetrist would type it from the survey report.
+    # One section per flight.toml section ([processing], [mounting], [gnss], [output]).
     cfg = ProcessingConfig(
-        method="axis",
-        lever_arm_gnss=(0.45, 0.15, -1.65),     # m, body frame: IMU -> GNSS antenna
-        lever_arm_camera=(1.10, -0.25, 0.55),   # m, body frame: IMU -> camera perspective centre
-        boresight=(0.35, -0.6, 1.2),            # deg, camera in body frame
-        gnss_sigma=(1.0, 1.0, 2.0),             # m, N/E/U
-        crs="EPSG:3765",                        # HTRS96/TM easting/northing
+        processing=ProcessingSection(method="axis"),
+        mounting=MountingSection(
+            lever_arm_gnss=(0.45, 0.15, -1.65),     # m, body frame: IMU -> GNSS antenna
+            lever_arm_camera=(1.10, -0.25, 0.55),   # m, body frame: IMU -> camera perspective centre
+            boresight=(0.35, -0.6, 1.2),            # deg, camera in body frame
+        ),
+        gnss=GnssSection(sigma=(1.0, 1.0, 2.0)),   # m, N/E/U
+        output=OutputSection(crs="EPSG:3765"),      # HTRS96/TM easting/northing
     )
     result = process(paths["POS.txt"], paths["Kamera.txt"], cfg)
     write_eo_csv(result.table, folder / "eo.csv")

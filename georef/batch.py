@@ -109,31 +109,28 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None,
         cfg = load_config(job.config) if job.config else ProcessingConfig()
         if method:
             cfg = cfg.updated(method=method)
-        if calibration_prior is not None:
-            cfg = cfg.updated(calibration_prior=calibration_prior)
         specs = [ExportSpec("csv", out / "eo.csv"), *(ExportSpec(fmt, out / name) for fmt, name in exports)]
-        frames = (OutputFrames(cfg.crs, cfg.height, cfg.vertical_crs)
-                  if cfg.crs or cfg.height != "ellipsoidal" else None)
+        frames = (OutputFrames(cfg.output.crs, cfg.output.height, cfg.output.vertical_crs)
+                  if cfg.output.crs or cfg.output.height != "ellipsoidal" else None)
         check_exports(specs, frames)  # a format that needs this flight's CRS fails before processing
-        result = process(job.pos, job.camera, cfg)
+        result = process(job.pos, job.camera, cfg, calibration_prior=calibration_prior)
         with atomic_group():
             for spec in specs:
-                write_export(result.table, spec.path, spec.fmt, frames=result.frames, odm_angles=cfg.odm_angles)
+                write_export(result.table, spec.path, spec.fmt, frames=result.frames, odm_angles=cfg.output.odm_angles)
         row["outputs"] += [{"what": "table" if k == 0 else "export", "format": spec.fmt, "path": str(spec.path)}
                            for k, spec in enumerate(specs)]
         summary = result.summary()
-        reduction = result.nav.info.get("graph_calibration")
-        if reduction is not None:
-            row["calibration"] = {key: np.asarray(value, float).tolist() for key, value in reduction.items()}
+        if result.nav.graph_info is not None:
+            row["calibration"] = result.nav.graph_info.calibration.as_lists()
         gnss = result.nav.gnss
         used = gnss.status >= 1
         nis = gnss.normalised_innovation_sq[used]
-        row.update(status="ok", method=cfg.method, frames=summary["frames_written"],
+        row.update(status="ok", method=cfg.processing.method, frames=summary["frames_written"],
                    frames_flagged=summary["frames_flagged"], gnss_epochs=summary["gnss_epochs"],
                    rejected_fixes=len(summary["gnss_rejected_lines"]),
                    innovation_mean_nis=float(np.mean(nis)) if len(nis) else float("nan"),
                    innovation_share_over_gate=float(np.mean(gnss.normalised_innovation_sq[gnss.status >= 0]
-                                                            > cfg.gate_chi2)) if len(nis) else float("nan"),
+                                                            > cfg.gnss_gate.chi2)) if len(nis) else float("nan"),
                    message="")
         # the verdict is judged here, on the worker, and travels back as plain text
         verdict = assess_result(result)

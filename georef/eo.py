@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from georef.align import GnssEpochs
-from georef.config import ProcessingConfig
+from georef.config import MountingSection, OutputSection
 from georef.exposure import ExposureStates
 from georef.frames import C_e_n, dcm_to_euler, ecef_to_geodetic, skew, wrap_360
 from georef.frames.mounting import camera_attitude, lever_arm_ecef, lever_arm_offset
@@ -67,8 +67,8 @@ def _flags(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, outag
     return np.array(["; ".join(f) for f in flags], dtype=object)
 
 
-def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, cfg: ProcessingConfig,
-                    outage_min_s: float = 2.5, frames: OutputFrames | None = None,
+def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, mounting: MountingSection,
+                    output: OutputSection | None = None, outage_min_s: float = 2.5, frames: OutputFrames | None = None,
                     image_names: ImageNames | None = None) -> pd.DataFrame:
     """The EO table of every exposure (rows outside the navigation span have empty values and a flag).
 
@@ -76,15 +76,17 @@ def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpoc
     more than ``outage_min_s`` after the last GNSS fix or before the first one (with the seconds of inertial-only
     navigation); a duplicate frame number; a time earlier than the previous frame's.
 
-    ``frames`` (default: from ``cfg.crs``, ``cfg.height``, ``cfg.vertical_crs``) gives the grid and the heights;
-    ``image_names`` (default: from ``cfg.image_names``) the ``image`` column.
+    ``mounting``: the camera's lever arm [m, body] and boresight [deg]. ``frames`` (default: from ``output.crs``,
+    ``output.height``, ``output.vertical_crs``) gives the grid and the heights; ``image_names`` (default: from
+    ``output.image_names``) the ``image`` column; without them and ``output``, WGS 84 ellipsoidal, no names.
     """
-    if frames is None and (cfg.crs or cfg.height != "ellipsoidal"):
+    output = output or OutputSection()
+    if frames is None and (output.crs or output.height != "ellipsoidal"):
         from georef.frames.heights import OutputFrames  # pyproj only when a CRS or a geoid is asked for
 
-        frames = OutputFrames(cfg.crs, cfg.height, cfg.vertical_crs)
-    if image_names is None and cfg.image_names:
-        image_names = ImageNames.parse(cfg.image_names)
+        frames = OutputFrames(output.crs, output.height, output.vertical_crs)
+    if image_names is None and output.image_names:
+        image_names = ImageNames.parse(output.image_names)
     inside = states.inside
     n = len(exposures)
     out = {name: np.full(n, np.nan) for name in EO_COLUMNS[2:]}
@@ -92,10 +94,10 @@ def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpoc
         r_imu = states.r_e[inside]
         lat_i, lon_i, _ = ecef_to_geodetic(r_imu)
         C_b_n = states.C_b_n[inside]
-        lever_cam = np.asarray(cfg.lever_arm_camera)
+        lever_cam = np.asarray(mounting.lever_arm_camera)
         r_cam = r_imu + lever_arm_ecef(lat_i, lon_i, C_b_n, lever_cam)
         lat, lon, height = ecef_to_geodetic(r_cam)
-        C_c_n = camera_attitude(C_b_n, np.radians(cfg.boresight))
+        C_c_n = camera_attitude(C_b_n, np.radians(mounting.boresight))
         roll, pitch, yaw = dcm_to_euler(C_c_n)
         # Position covariance at the camera: IMU position plus the lever arm turned by attitude errors,
         # d(C_b_n l) = -[(C_b_n l) x] phi for a small NED rotation phi.

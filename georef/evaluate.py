@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from georef.align import GnssEpochs
-from georef.config import ProcessingConfig
+from georef.config import MountingSection, OutputSection
 from georef.eo import camera_eo_table
 from georef.exposure import ExposureStates
 from georef.frames import C_e_n, geodetic_to_ecef, wrap_pi
@@ -59,10 +59,11 @@ def sigma_coverage(estimate: pd.DataFrame, errors: pd.DataFrame, k: float = 2.0)
     return out
 
 
-def gnss_interpolation_baseline(exposures: Exposures, gnss: GnssEpochs, nav: NavSolution,
-                                cfg: ProcessingConfig) -> pd.DataFrame:
+def gnss_interpolation_baseline(exposures: Exposures, gnss: GnssEpochs, nav: NavSolution, mounting: MountingSection,
+                                output: OutputSection | None = None) -> pd.DataFrame:
     """The pre-thesis practice, improved by the lever arms: GNSS antenna fixes linearly interpolated in ECEF
-    to the exposure times, moved to the camera through both lever arms with the attitude of ``nav``."""
+    to the exposure times, moved to the camera through both lever arms of ``mounting`` [m, body] with the attitude
+    of ``nav``; the table's coordinates as ``output`` asks (default WGS 84 ellipsoidal)."""
     row_time = nav.time
     r_ant = geodetic_to_ecef(np.radians(gnss.lat_deg), np.radians(gnss.lon_deg), gnss.height)
     t = exposures.time
@@ -71,7 +72,7 @@ def gnss_interpolation_baseline(exposures: Exposures, gnss: GnssEpochs, nav: Nav
     C_b_n = attitude_at(row_time, nav.roll, nav.pitch, nav.yaw, t[inside])
     lat = np.radians(np.interp(t[inside], gnss.time, gnss.lat_deg))
     lon = np.radians(np.interp(t[inside], gnss.time, gnss.lon_deg))
-    r_imu = r_at - lever_arm_ecef(lat, lon, C_b_n, cfg.lever_arm_gnss)
+    r_imu = r_at - lever_arm_ecef(lat, lon, C_b_n, mounting.lever_arm_gnss)
     n = len(t)
     states = ExposureStates(time=t, inside=inside, r_e=np.full((n, 3), np.nan), v_e=np.full((n, 3), np.nan),
                             C_b_n=np.full((n, 3, 3), np.nan), pos_var_n=np.full((n, 3), np.nan),
@@ -79,4 +80,4 @@ def gnss_interpolation_baseline(exposures: Exposures, gnss: GnssEpochs, nav: Nav
     states.r_e[inside] = r_imu
     states.v_e[inside] = 0.0
     states.C_b_n[inside] = C_b_n
-    return camera_eo_table(exposures, states, gnss, cfg)
+    return camera_eo_table(exposures, states, gnss, mounting, output)

@@ -1,7 +1,8 @@
 """The whole path of ``georef process``: read -> time-align -> fuse -> interpolate -> mount -> table.
 
 >>> from georef.pipeline import process
->>> result = process("POS.txt", "Kamera.txt", ProcessingConfig(lever_arm_gnss=(0.4, 0.1, -1.6)))
+>>> from georef.config import AxisSettings, CameraColumns, CameraSection, GnssSection, ProcessingConfig
+>>> result = process("POS.txt", "Kamera.txt", ProcessingConfig().updated(lever_arm_gnss=(0.4, 0.1, -1.6)))
 >>> result.table  # one row per frame, see georef.eo
 """
 
@@ -17,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from georef.align import to_reference_day
-from georef.config import ProcessingConfig
+from georef.config import AxisSettings, CameraColumns, CameraSection, GnssSection, ProcessingConfig
 from georef.eo import FLAG_AFTER_LAST_FIX, FLAG_BEFORE_FIRST_FIX, FLAG_OUTSIDE, camera_eo_table
 from georef.exposure import interpolate_to_exposures
 from georef.frames.rotations import wrap_pi
@@ -33,19 +34,21 @@ from georef.io.pos import PosLog, read_pos
 if TYPE_CHECKING:
     from georef.frames.heights import OutputFrames
 
-SOLVERS: dict[str, tuple[Callable[[PosLog, ProcessingConfig], NavSolution], tuple[str, ...]]] = {
-    "axis": (axis.solve_axis, axis.REQUIRED_ROLES),
-    "ekf": (ins.solve_ekf, ins.REQUIRED_ROLES),
-    "rts": (ins.solve_rts, ins.REQUIRED_ROLES),
-    "graph": (lambda log, cfg: _solve_graph(log, cfg), ins.REQUIRED_ROLES),
+#: method -> (solver on a POS log, given the whole configuration and the campaign's calibration prior (graph
+#: only), the POS columns it needs); each solver hands its method only the sections that method reads
+SOLVERS: dict[str, tuple[Callable[[PosLog, ProcessingConfig, tuple | None], NavSolution], tuple[str, ...]]] = {
+    "axis": (lambda log, cfg, _prior: axis.solve_axis(log, AxisSettings.of(cfg)), axis.REQUIRED_ROLES),
+    "ekf": (lambda log, cfg, _prior: ins.solve_ekf(log, cfg), ins.REQUIRED_ROLES),
+    "rts": (lambda log, cfg, _prior: ins.solve_rts(log, cfg), ins.REQUIRED_ROLES),
+    "graph": (lambda log, cfg, prior: _solve_graph(log, cfg, prior), ins.REQUIRED_ROLES),
 }
 
 
-def _solve_graph(log: PosLog, cfg: ProcessingConfig) -> NavSolution:
+def _solve_graph(log: PosLog, cfg: ProcessingConfig, prior: tuple | None) -> NavSolution:
     """GTSAM is imported only when the graph method is used (it costs start-up time)."""
     from georef.fusion.graph import solve_graph
 
-    return solve_graph(log, cfg)
+    return solve_graph(log, cfg, prior)
 
 Progress = Callable[[str], None]
 
@@ -69,7 +72,7 @@ class ProcessResult:
         ``--method axis`` (None otherwise); the heading source, the unit's yaw origin and the fitted noise those of
         the full-state filters (see :func:`solution_figures`)."""
         flags = self.table["flag"].astype(str)
-        yaw = self.nav.info.get("yaw_offset")
+        yaw = self.nav.axis_info.yaw_offset if self.nav.axis_info is not None else None
         gnss = self.nav.gnss
         summary: dict[str, object] = {
             "frames_written": len(self.table),
@@ -92,7 +95,7 @@ class ProcessResult:
             "time_quirks_repaired": self.log.time_repairs.n_quirks,
             "method": self.nav.method,
         }
-        summary.update(solution_figures(self.nav, self.config))
+        summary.update(solution_figures(self.nav, self.config.gnss))
         summary.update(geodesy_figures(self.frames, self.table))
         return summary
 
@@ -128,7 +131,7 @@ def geodesy_figures(frames: OutputFrames | None, table: pd.DataFrame) -> dict[st
             "geodesy_warnings": warnings}
 
 
-def solution_figures(nav: NavSolution, cfg: ProcessingConfig) -> dict[str, object]:
+def solution_figures(nav: NavSolution, gnss: GnssSection) -> dict[str, object]:
     """What the full-state filters (``nav.diagnostics`` set) found, for summaries (empty for other methods):
 
     * ``heading_source``: where the initial heading came from;
@@ -136,7 +139,7 @@ def solution_figures(nav: NavSolution, cfg: ProcessingConfig) -> dict[str, objec
       yaw + d) at the filter's first row and its 1-sigma [deg], and ``unit_yaw_drift_deg_per_min`` its drift (a
       straight line fitted to the smoothed origin) [deg/min]: only when the unit's attitude aided the filter;
     * ``gnss_sigma_fitted_m``: the GNSS sigmas north, east, up the fitted noise model uses [m]
-      (sqrt(r_scale) times ``cfg.gnss_sigma``), ``vrw_m_s_sqrt_h`` the horizontal velocity random walk
+      (sqrt(r_scale) times the configured ``gnss.sigma``), ``vrw_m_s_sqrt_h`` the horizontal velocity random walk
       [m/s/sqrt(h)], ``arw_deg_sqrt_h`` the angle random walk about north/east [deg/sqrt(h)];
     * ``ground_vehicle``: non-holonomic constraints applied;
     * ``graph_lever_arm_m``, ``graph_lever_arm_sigma_m`` (``--method graph`` only): the GNSS lever arm [m, body x
@@ -151,7 +154,7 @@ def solution_figures(nav: NavSolution, cfg: ProcessingConfig) -> dict[str, objec
     if diagnostics is None:
         return {}
     noise = diagnostics.noise
-    sigma = np.asarray(cfg.gnss_sigma, float)
+    sigma = np.asarray(gnss.sigma, float)
     scale = np.sqrt([noise.r_scale_h, noise.r_scale_h, noise.r_scale_v])
     figures: dict[str, object] = {
         "heading_source": str(diagnostics.heading_source),
@@ -160,10 +163,9 @@ def solution_figures(nav: NavSolution, cfg: ProcessingConfig) -> dict[str, objec
         "vrw_m_s_sqrt_h": float(noise.vrw_h), "arw_deg_sqrt_h": float(noise.arw_h),
         "ground_vehicle": bool(diagnostics.ground_vehicle),
     }
-    origin = nav.info.get("unit_yaw_origin")
-    epoch_sigma = nav.info.get("epoch_sigma")
-    if diagnostics.unit_aiding and origin is not None and epoch_sigma is not None and len(epoch_sigma):
-        start = int(nav.info.get("start_row", 0))
+    ins_info = nav.ins_info
+    if diagnostics.unit_aiding and ins_info is not None and len(ins_info.epoch_sigma):
+        origin, epoch_sigma, start = ins_info.unit_yaw_origin, ins_info.epoch_sigma, int(ins_info.start_row)
         rows = np.flatnonzero(nav.valid & np.isfinite(origin))
         rows = rows[rows >= start]
         if len(rows):
@@ -173,18 +175,21 @@ def solution_figures(nav: NavSolution, cfg: ProcessingConfig) -> dict[str, objec
             if len(rows) > 1 and nav.time[rows[-1]] > nav.time[rows[0]]:
                 slope = np.polyfit(nav.time[rows] - nav.time[rows[0]], d, 1)[0]
                 figures["unit_yaw_drift_deg_per_min"] = float(np.degrees(slope) * 60.0)
-    if "graph_lever_arm_m" in nav.info:  # --method graph: the lever arm estimated with the trajectory
-        figures["graph_lever_arm_m"] = tuple(float(v) for v in nav.info["graph_lever_arm_m"])
-        figures["graph_lever_arm_sigma_m"] = tuple(float(v) for v in nav.info["graph_lever_arm_sigma_m"])
-        figures["graph_time_offset_s"] = float(nav.info["graph_time_offset_s"])
-        figures["graph_time_offset_sigma_s"] = float(nav.info["graph_time_offset_sigma_s"])
-        figures["graph_rejected_fixes"] = int(nav.info["graph_rejected_fixes"])
-    for key in ("graph_gyro_scale_ppm", "graph_gyro_scale_sigma_ppm", "graph_accel_scale_ppm",
-                "graph_accel_scale_sigma_ppm"):
-        if key in nav.info:
-            figures[key] = tuple(float(v) for v in nav.info[key])
-    if "graph_scale_prior_sigma_ppm" in nav.info:
-        figures["graph_scale_prior_sigma_ppm"] = float(nav.info["graph_scale_prior_sigma_ppm"])
+    graph = nav.graph_info
+    if graph is not None:  # --method graph: the lever arm estimated with the trajectory
+        figures["graph_lever_arm_m"] = tuple(float(v) for v in graph.lever_arm_m)
+        figures["graph_lever_arm_sigma_m"] = tuple(float(v) for v in graph.lever_arm_sigma_m)
+        figures["graph_time_offset_s"] = float(graph.time_offset_s)
+        figures["graph_time_offset_sigma_s"] = float(graph.time_offset_sigma_s)
+        figures["graph_rejected_fixes"] = int(graph.rejected_fixes)
+        scale = graph.scale_factors
+        if scale is not None:
+            for key, values in (("graph_gyro_scale_ppm", scale.gyro_ppm),
+                                ("graph_gyro_scale_sigma_ppm", scale.gyro_sigma_ppm),
+                                ("graph_accel_scale_ppm", scale.accel_ppm),
+                                ("graph_accel_scale_sigma_ppm", scale.accel_sigma_ppm)):
+                figures[key] = tuple(float(v) for v in values)
+            figures["graph_scale_prior_sigma_ppm"] = float(scale.prior_sigma_ppm)
     return figures
 
 
@@ -209,33 +214,41 @@ def recompute_unit_tilt(log: PosLog) -> None:
     log.notices.append(InputNotice(log.path, [], None, "roll and pitch recomputed from the raw IMU (MEKF)"))
 
 
-def read_exposures(path: Path | str, cfg: ProcessingConfig) -> Exposures:
-    """Kamera.txt or the camera's raw log, told apart by the raw log's ``Exposition`` header column."""
-    return read_camera_exposures(path, cfg.camera_utc_offset, cfg.camera_columns)
+def read_exposures(path: Path | str, camera: CameraSection, columns: CameraColumns) -> Exposures:
+    """Kamera.txt or the camera's raw log, told apart by the raw log's ``Exposition`` header column (the raw log's
+    clock at ``camera.utc_offset`` [h] from UTC; ``columns``: the header names of the roles)."""
+    return read_camera_exposures(path, camera.utc_offset, columns.names)
 
 
 def process(pos_path: Path | str, camera_path: Path | str, cfg: ProcessingConfig,
-            progress: Progress | None = None) -> ProcessResult:
-    """Georeference every frame of ``camera_path`` from the POS log ``pos_path`` with ``cfg.method``."""
+            progress: Progress | None = None, calibration_prior: tuple | None = None) -> ProcessResult:
+    """Georeference every frame of ``camera_path`` from the POS log ``pos_path`` with ``cfg.processing.method``.
+
+    Takes the whole configuration: reading, fusing and the EO table use every section between them.
+    ``calibration_prior`` (``--method graph`` only): a campaign's prior on (lever arm x, y, z [m, body], GNSS time
+    offset [s]) as (mean (4,), covariance (4, 4)), replacing the flight's own (``georef batch
+    --shared-calibration``; :func:`georef.fusion.graph.calibration_prior`)."""
+    if calibration_prior is not None and cfg.processing.method != "graph":
+        raise ValueError("a calibration prior is a prior of the graph's variables: it needs method 'graph'")
     say = progress or (lambda _step: None)
     timings: dict[str, float] = {}
-    solver, roles = SOLVERS[cfg.method]
+    solver, roles = SOLVERS[cfg.processing.method]
     # the output CRS, its geoid grid and the image names are checked before any reading or fusing
     frames = None
-    if cfg.crs or cfg.height != "ellipsoidal":
+    if cfg.output.crs or cfg.output.height != "ellipsoidal":
         from georef.frames.heights import OutputFrames
 
-        frames = OutputFrames(cfg.crs, cfg.height, cfg.vertical_crs)
-    image_names = ImageNames.parse(cfg.image_names) if cfg.image_names else None
+        frames = OutputFrames(cfg.output.crs, cfg.output.height, cfg.output.vertical_crs)
+    image_names = ImageNames.parse(cfg.output.image_names) if cfg.output.image_names else None
 
     start = time.perf_counter()
     say("reading POS log")
-    log = read_pos(pos_path, required_roles=roles, column_names=cfg.pos_columns, gnss_rate_hz=cfg.gnss_rate_hz)
+    log = read_pos(pos_path, required_roles=roles, column_names=cfg.pos_columns.names, gnss_rate_hz=cfg.gnss.rate_hz)
     say("reading exposures")
-    exposures = read_exposures(camera_path, cfg)
-    if cfg.camera_time_offset:
+    exposures = read_exposures(camera_path, cfg.camera, cfg.camera_columns)
+    if cfg.camera.time_offset:
         # trigger latency: each exposure happened camera_time_offset [s] after its logged time
-        exposures.time = exposures.time + float(cfg.camera_time_offset)
+        exposures.time = exposures.time + float(cfg.camera.time_offset)
     exposures.time = to_reference_day(exposures.time, float(log.time[0]), float(log.time[-1]))
     if image_names is not None:
         image_names.names([str(f) for f in exposures.frame])  # a frame without a name fails before fusing
@@ -246,20 +259,21 @@ def process(pos_path: Path | str, camera_path: Path | str, cfg: ProcessingConfig
         raise GeorefError(f"{log.path}: no usable GNSS fix (columns {names.get('lat')}, {names.get('lon')}, "
                           f"{names.get('alt')} stay 0 or hold a single value); every method needs GNSS positions")
 
-    if cfg.attitude_source == "imu":
+    if cfg.processing.attitude_source == "imu":
         say("recomputing roll and pitch from the raw IMU")
         recompute_unit_tilt(log)
         cfg = cfg.updated(unit_aiding=False)
 
     start = time.perf_counter()
-    say(f"fusing ({cfg.method})")
-    nav = solver(log, cfg)
+    say(f"fusing ({cfg.processing.method})")
+    nav = solver(log, cfg, calibration_prior)
     timings["fuse"] = time.perf_counter() - start
 
     start = time.perf_counter()
     say("interpolating to exposures")
     states = interpolate_to_exposures(nav, exposures.time)
-    table = camera_eo_table(exposures, states, log.gnss, cfg, frames=frames, image_names=image_names)
+    table = camera_eo_table(exposures, states, log.gnss, cfg.mounting, cfg.output, frames=frames,
+                            image_names=image_names)
     timings["interpolate"] = time.perf_counter() - start
     return ProcessResult(table=table, nav=nav, log=log, exposures=exposures, config=cfg,
                          notices=[*log.notices, *exposures.notices], timings=timings, frames=frames)

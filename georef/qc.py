@@ -76,7 +76,7 @@ LATENCY_SIGMAS = 3.0
 LATENCY_MIN_S = 0.02
 #: frames: more than this share outside the navigation span fails
 OUTSIDE_FAIL_SHARE = 0.5
-#: the default chi-square gate of a 3-D GNSS innovation (ProcessingConfig.gate_chi2)
+#: the default chi-square gate of a 3-D GNSS innovation (ProcessingConfig.gnss_gate.chi2, flight.toml's gate_chi2)
 DEFAULT_GATE = 16.27
 
 AXES = ("x", "y", "z")
@@ -164,7 +164,7 @@ def _gate(nav: NavSolution, cfg: ProcessingConfig | None) -> float:
     """The chi-square gate of the run (3 degrees of freedom)."""
     if nav.diagnostics is not None:
         return float(nav.diagnostics.gate_chi2)
-    return float(cfg.gate_chi2) if cfg is not None else DEFAULT_GATE
+    return float(cfg.gnss_gate.chi2) if cfg is not None else DEFAULT_GATE
 
 
 # ---- the checks --------------------------------------------------------------------------------------------------
@@ -288,8 +288,9 @@ LEVER_ADVICE = ("Check for a typo, the sign (body axes x forward, y right, z dow
 def check_lever_arm(nav: NavSolution) -> Check | None:
     """``lever arm``: the calibration pass's lever arm against the configured one, per body axis
     (``--method graph``: :func:`check_graph_lever_arm`)."""
-    graph = nav.info.get("graph_calibration") if isinstance(nav.info, dict) else None
-    if graph is not None and all(np.isfinite(np.asarray(value, float)).all() for value in graph.values()):
+    graph = nav.graph_info
+    if graph is not None and all(np.isfinite(np.asarray(value, float)).all()
+                                 for value in vars(graph.calibration).values()):
         return check_graph_lever_arm(nav)
     # not a graph, or a graph whose calibration marginal could not be computed (an ill-conditioned graph: NaN)
     diagnostics = nav.diagnostics
@@ -322,7 +323,7 @@ def check_graph_lever_arm(nav: NavSolution) -> Check | None:
     from georef.campaign import FlightReduction
     from georef.fusion.graph import LEVER_ARM_FREE_SIGMA
 
-    reduction = FlightReduction.from_dict(nav.info["graph_calibration"])
+    reduction = FlightReduction.from_dict(nav.graph_info.calibration.as_lists())
     own, own_sigma = reduction.own_estimate()
     prior, prior_sigma = reduction.prior_mean[:3], np.sqrt(np.diag(reduction.prior_covariance))[:3]
     applied, applied_sigma = reduction.mean[:3], np.sqrt(np.diag(reduction.covariance))[:3]
@@ -360,7 +361,7 @@ def check_latency(nav: NavSolution, cfg: ProcessingConfig | None = None) -> Chec
     diagnostics = nav.diagnostics
     if diagnostics is None or diagnostics.calibration is None:
         return None
-    given = cfg.gnss_latency if cfg is not None else (diagnostics.latency_applied or None)
+    given = cfg.gnss.latency if cfg is not None else (diagnostics.latency_applied or None)
     if given is not None:
         return None
     value = float(diagnostics.calibration.latency)
@@ -426,10 +427,12 @@ GRAPH_SEPARATION_SHARE = 0.02
 def check_graph_separation(nav: NavSolution) -> Check | None:
     """``graph vs rts`` (``--method graph``): the graph smoother against the EKF + RTS solution it started from,
     horizontal position and attitude, at its keyframes."""
-    info = nav.info if isinstance(nav.info, dict) else {}
-    parts = [(what, np.asarray(info[key], float)) for what, key in
-             (("horizontal positions", "graph_rts_separation_sigma"),
-              ("attitudes", "graph_rts_attitude_separation_sigma")) if info.get(key) is not None and len(info[key])]
+    graph = nav.graph_info
+    if graph is None:
+        return None
+    parts = [(what, np.asarray(values, float)) for what, values in
+             (("horizontal positions", graph.rts_separation_sigma),
+              ("attitudes", graph.rts_attitude_separation_sigma)) if values is not None and len(values)]
     if not parts:
         return None
     texts, failed = [], False

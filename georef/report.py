@@ -330,7 +330,7 @@ def _innovations(result: ProcessResult) -> str:
     rejected = gnss.status == 0
     if rejected.any():
         ax.semilogy(gnss.time[rejected], statistic[rejected], "x", color="tab:red", ms=9, label="rejected")
-    gate = result.config.gate_chi2
+    gate = result.config.gnss_gate.chi2
     ax.axhline(gate, color="black", ls="--", label=f"χ² gate {gate:g}")
     ax.axhline(3.0, color="0.5", ls=":", label="expected mean 3")
     _shade_outages(ax, result, label=True)
@@ -435,16 +435,16 @@ def _gaps_table(gaps: list[tuple[float, float]]) -> str:
 
 
 def _biases(result: ProcessResult) -> str | None:
-    info = result.nav.info
-    if "gyro_bias" not in info:
+    info = result.nav.ins_info
+    if info is None:
         return None
     v = np.flatnonzero(result.nav.valid)
     v = v[:: _stride(len(v))]
     t = result.nav.time[v]
     fig, axes = plt.subplots(2, 1, figsize=(11, 5.5), sharex=True)
     for k, axis in enumerate("xyz"):
-        axes[0].plot(t, np.degrees(info["gyro_bias"][v, k]) * 3600.0, color=_COLOURS[k], label=axis)
-        axes[1].plot(t, info["accel_bias"][v, k] / STANDARD_GRAVITY * 1000.0, color=_COLOURS[k], label=axis)
+        axes[0].plot(t, np.degrees(info.gyro_bias[v, k]) * 3600.0, color=_COLOURS[k], label=axis)
+        axes[1].plot(t, info.accel_bias[v, k] / STANDARD_GRAVITY * 1000.0, color=_COLOURS[k], label=axis)
     axes[0].set_ylabel("gyro bias [deg/h]")
     axes[1].set_ylabel("accelerometer bias [mg]")
     axes[0].legend(fontsize=8, ncol=3, loc="upper right")
@@ -455,18 +455,19 @@ def _biases(result: ProcessResult) -> str | None:
 def _yaw_offset(result: ProcessResult) -> str | None:
     """The POS unit's yaw origin: the axis method's followed offset, or the full-state filter's smoothed origin
     state with its sigma (and the windows recovered from IACC that gave its prior, when there were)."""
-    info = result.nav.info
-    solution = info.get("yaw_offset")
-    diagnostics = result.nav.diagnostics
-    origin = info.get("unit_yaw_origin")
-    if solution is None and diagnostics is not None and origin is not None and diagnostics.unit_aiding:
+    nav = result.nav
+    solution = nav.axis_info.yaw_offset if nav.axis_info is not None else None
+    diagnostics = nav.diagnostics
+    ins_info = nav.ins_info
+    if solution is None and diagnostics is not None and ins_info is not None and diagnostics.unit_aiding:
+        origin = ins_info.unit_yaw_origin
         solution = getattr(diagnostics.alignment, "yaw_offset", None)
         rows = np.flatnonzero(result.nav.valid & np.isfinite(origin))
         if len(rows) == 0:
             return None
         from georef.fusion.ins_layout import UNIT_YAW
 
-        epoch_rows, epoch_sigma = info.get("epoch_rows"), info.get("epoch_sigma")
+        epoch_rows, epoch_sigma = ins_info.epoch_rows, ins_info.epoch_sigma
         value = np.unwrap(np.asarray(origin, float)[rows])
         t = result.nav.time[rows]
         fig, ax = plt.subplots(figsize=(11, 3.8))
@@ -654,42 +655,45 @@ def _provenance(result: ProcessResult, inputs: dict[str, Path | str | None] | No
                                                                                               f"{digest}</code>")))
     cfg = result.config
     diagnostics = result.nav.diagnostics
+    mount, gate = cfg.mounting, cfg.gnss_gate.chi2
     mounting: list[tuple[object, object]] = [
-        ("GNSS lever arm (IMU → antenna)", _triple(cfg.lever_arm_gnss, ("x", "y", "z"), "m (body: x forward, y right, "
-                                                                                          "z down)")),
+        ("GNSS lever arm (IMU → antenna)", _triple(mount.lever_arm_gnss, ("x", "y", "z"),
+                                                   "m (body: x forward, y right, z down)")),
     ]
     calibration = getattr(diagnostics, "calibration", None)
     if calibration is not None:
         mounting.append(("GNSS lever arm the data show", ", ".join(
             f"{a} {_number(float(v))} ± {_number(float(s))}" for a, v, s in
             zip("xyz", calibration.lever_arm, calibration.lever_arm_sigma, strict=True)) + " m (not applied)"))
-    info = result.nav.info
-    if "graph_lever_arm_m" in info:  # --method graph: the calibration estimated with the trajectory (applied)
+    graph = result.nav.graph_info
+    if graph is not None:  # --method graph: the calibration estimated with the trajectory (applied)
         mounting.append(("GNSS lever arm the graph estimated", ", ".join(
             f"{a} {_number(float(v))} ± {_number(float(s))}" for a, v, s in
-            zip("xyz", info["graph_lever_arm_m"], info["graph_lever_arm_sigma_m"], strict=True))
+            zip("xyz", graph.lever_arm_m, graph.lever_arm_sigma_m, strict=True))
             + " m (applied: the trajectory was solved with it)"))
         mounting.append(("GNSS time offset the graph estimated",
-                         f"{_number(1e3 * float(info['graph_time_offset_s']))} ± "
-                         f"{_number(1e3 * float(info['graph_time_offset_sigma_s']))} ms (applied)"))
-    for sensor, name in (("gyro", "gyro"), ("accel", "accelerometer")):
-        if f"graph_{sensor}_scale_ppm" in info:
-            prior = float(info["graph_scale_prior_sigma_ppm"])
+                         f"{_number(1e3 * float(graph.time_offset_s))} ± "
+                         f"{_number(1e3 * float(graph.time_offset_sigma_s))} ms (applied)"))
+    scale = graph.scale_factors if graph is not None else None
+    if scale is not None:
+        prior = float(scale.prior_sigma_ppm)
+        for name, values, sigmas in (("gyro", scale.gyro_ppm, scale.gyro_sigma_ppm),
+                                     ("accelerometer", scale.accel_ppm, scale.accel_sigma_ppm)):
             mounting.append((f"{name} scale factors the graph estimated", ", ".join(
                 f"{a} {v:.0f} ± {s:.0f}" + (" (not observed)" if s > 0.8 * prior else "") for a, v, s in
-                zip("xyz", info[f"graph_{sensor}_scale_ppm"], info[f"graph_{sensor}_scale_sigma_ppm"], strict=True))
+                zip("xyz", values, sigmas, strict=True))
                 + f" ppm (prior ± {prior:.0f} ppm; applied)"))
     mounting += [
-        ("camera lever arm (IMU → perspective centre)", _triple(cfg.lever_arm_camera, ("x", "y", "z"), "m (body)")),
-        ("boresight", _triple(cfg.boresight, ("roll", "pitch", "yaw"), "deg (C_c_b = Rz(yaw) Ry(pitch) Rx(roll))")),
-        ("GNSS σ given", _triple(cfg.gnss_sigma, ("N", "E", "U"), "m", 2)),
-        ("innovation gate", f"χ² {cfg.gate_chi2:g} on the 3-D position innovation ({_gate_probability(cfg.gate_chi2)}"
+        ("camera lever arm (IMU → perspective centre)", _triple(mount.lever_arm_camera, ("x", "y", "z"), "m (body)")),
+        ("boresight", _triple(mount.boresight, ("roll", "pitch", "yaw"), "deg (C_c_b = Rz(yaw) Ry(pitch) Rx(roll))")),
+        ("GNSS σ given", _triple(cfg.gnss.sigma, ("N", "E", "U"), "m", 2)),
+        ("innovation gate", f"χ² {gate:g} on the 3-D position innovation ({_gate_probability(gate)}"
                             " of good fixes pass)"),
-        ("GNSS latency applied", f"{_number(float(cfg.gnss_latency or 0.0))} s"
+        ("GNSS latency applied", f"{_number(float(cfg.gnss.latency or 0.0))} s"
          + (f"; the data show {_number(calibration.latency)} ± {_number(calibration.latency_sigma)} s (not applied)"
             if calibration is not None else "")),
-        ("camera trigger latency", f"{_number(float(cfg.camera_time_offset))} s"),
-        ("projected CRS", cfg.crs or "— (geographic coordinates only)"),
+        ("camera trigger latency", f"{_number(float(cfg.camera.time_offset))} s"),
+        ("projected CRS", cfg.output.crs or "— (geographic coordinates only)"),
     ]
     return (_table(rows)
             + "<h3>Input files</h3>" + _table(file_rows, header=("file", "path", "size", "SHA-256"))
@@ -723,15 +727,14 @@ _SETTING_UNITS = {
 
 def _settings(cfg: ProcessingConfig) -> str:
     rows = []
-    for f in dataclasses.fields(cfg):
-        value = getattr(cfg, f.name)
+    for name, value in cfg.settings().items():
         if value is None:
             shown = "— (not set)"
         elif isinstance(value, dict):
             shown = readable(value) if value else "none (defaults)"
         else:
             shown = readable(value)
-        rows.append((_Raw(f"<code>{html.escape(f.name)}</code>"), shown, _SETTING_UNITS.get(f.name, "")))
+        rows.append((_Raw(f"<code>{html.escape(name)}</code>"), shown, _SETTING_UNITS.get(name, "")))
     return ("<p>Every setting of the run (<code>flight.toml</code> and command-line options applied over the "
             "defaults).</p>" + _table(rows, header=("setting", "value", "unit")))
 

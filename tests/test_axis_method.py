@@ -47,11 +47,12 @@ def test_axis_method_against_truth(tmp_path, seed):
     errors = frame_errors(table, flight.truth_frames)
     figures = accuracy(errors)
     nav = result.nav
-    baseline = gnss_interpolation_baseline(result.exposures, result.log.gnss, nav, processing)
+    baseline = gnss_interpolation_baseline(result.exposures, result.log.gnss, nav, processing.mounting,
+                                          processing.output)
     baseline_figures = accuracy(frame_errors(baseline, flight.truth_frames))
     assert figures["horizontal_rms_m"] < baseline_figures["horizontal_rms_m"]
 
-    solution = nav.info["yaw_offset"]
+    solution = nav.axis_info.yaw_offset
     true_offset = _true_offset_at(flight, solution.reference_time)
     assert abs(np.degrees(solution.offset) - true_offset) < 0.5
     assert figures["yaw_rms_deg"] <= YAW_RMS_DEG
@@ -68,7 +69,7 @@ def test_axis_method_is_deterministic(tmp_path):
 def test_yaw_offset_recovered_in_every_quadrant(tmp_path, offset_deg):
     """Bošnjak (2014) used atan and a rounding trick; atan2 on (cos, sin) must work across the whole circle."""
     flight, result, _ = _run(tmp_path, SimConfig(seed=11, unit=UnitModel(yaw_offset_deg=offset_deg)))
-    solution = result.nav.info["yaw_offset"]
+    solution = result.nav.axis_info.yaw_offset
     true_offset = np.radians(_true_offset_at(flight, solution.reference_time))
     assert abs(np.degrees(wrap_pi(solution.offset - true_offset))) < 0.5
     errors = frame_errors(result.table, flight.truth_frames)
@@ -82,4 +83,4 @@ def test_yaw_drift_is_followed(tmp_path):
     flight, result, _ = _run(tmp_path, cfg)
     errors = frame_errors(result.table, flight.truth_frames)
     assert accuracy(errors)["yaw_rms_deg"] <= YAW_RMS_DEG
-    assert np.degrees(result.nav.info["yaw_offset"].drift) * 60 == pytest.approx(3.0, abs=0.5)
+    assert np.degrees(result.nav.axis_info.yaw_offset.drift) * 60 == pytest.approx(3.0, abs=0.5)

@@ -335,7 +335,7 @@ def test_camera_columns_are_remapped_by_the_config(files, flight_config, referen
             '\n[camera_columns]\nnumber = "Frame"\ntime = "utc_S"\nmilliseconds = "ms"\n')
     files["flight.toml"].write_text(toml)
     cfg = load_config(files["flight.toml"])
-    assert cfg.camera_columns == {"number": "Frame", "time": "utc_S", "milliseconds": "ms"}
+    assert cfg.camera_columns.names == {"number": "Frame", "time": "utc_S", "milliseconds": "ms"}
     _same_table(process(files["POS.txt"], files["Kamera.txt"], cfg), reference)
     assert load_config_text(config_to_toml(cfg), tmp_path).camera_columns == cfg.camera_columns
     result = _cli(files)

@@ -127,7 +127,7 @@ def test_batch_shared_calibration_end_to_end(tmp_path):
         flight = simulate(replace(sim, plan=replace(sim.plan, duration_s=90.0)))
         folder = tmp_path / "flights" / f"f{seed}"
         write_flight(flight, folder)
-        cfg = replace(processing_config_for(flight), lever_arm_gnss=(0.0, 0.0, 0.0), gnss_sigma=(0.02, 0.02, 0.04))
+        cfg = processing_config_for(flight).updated(lever_arm_gnss=(0.0, 0.0, 0.0), gnss_sigma=(0.02, 0.02, 0.04))
         (folder / "flight.toml").write_text(config_to_toml(cfg), encoding="utf-8")
     out = tmp_path / "out"
     runner = CliRunner()
@@ -153,8 +153,8 @@ def test_batch_shared_calibration_end_to_end(tmp_path):
         assert (out / name / "eo.csv").exists()
     # fed back: flight.toml, then the campaign's calibration.toml
     cfg = load_configs([tmp_path / "flights" / "f1" / "flight.toml", out / "calibration.toml"])
-    np.testing.assert_allclose(cfg.lever_arm_gnss, document["gnss_lever_arm_m"], atol=1e-4)
-    assert cfg.gnss_latency == pytest.approx(document["gnss_time_offset_s"], abs=1e-5)
+    np.testing.assert_allclose(cfg.mounting.lever_arm_gnss, document["gnss_lever_arm_m"], atol=1e-4)
+    assert cfg.gnss.latency == pytest.approx(document["gnss_time_offset_s"], abs=1e-5)
     result = runner.invoke(app, ["process", str(tmp_path / "flights" / "f1" / "POS.txt"),
                                  str(tmp_path / "flights" / "f1" / "Kamera.txt"), "--config",
                                  str(tmp_path / "flights" / "f1" / "flight.toml"), "--config",

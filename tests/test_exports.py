@@ -532,8 +532,8 @@ def test_output_settings_in_flight_toml(tmp_path):
     (tmp_path / "flight.toml").write_text('[output]\ncrs = "EPSG:3765+5773"\nheight = "orthometric"\n'
                                           'image_names = "names.csv"\nodm_angles = true\n')
     cfg = load_config(tmp_path / "flight.toml")
-    assert cfg.image_names == str(tmp_path / "names.csv")  # beside flight.toml, wherever georef runs
-    assert (cfg.crs, cfg.height, cfg.odm_angles) == ("EPSG:3765+5773", "orthometric", True)
+    assert cfg.output.image_names == str(tmp_path / "names.csv")  # beside flight.toml, wherever georef runs
+    assert (cfg.output.crs, cfg.output.height, cfg.output.odm_angles) == ("EPSG:3765+5773", "orthometric", True)
     (tmp_path / "flight.toml").write_text('[output]\nheight = "geoid"\n')
     with pytest.raises(GeorefError, match="height"):
         load_config(tmp_path / "flight.toml")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from georef.config import InsSettings
 from georef.evaluate import accuracy, frame_errors
 from georef.pipeline import process
 from georef.sim.files import processing_config_for, write_flight
@@ -48,7 +49,7 @@ def test_robust_kernel_resists_outliers(tmp_path):
     plain = accuracy(frame_errors(results["plain"].table, flight.truth_frames))
     assert robust["horizontal_rms_m"] < plain["horizontal_rms_m"]
     # the outliers and at most one good fix of the 177 (expected 0.18 at the gate)
-    assert len(OUTLIERS) <= results["robust"].nav.info["graph_rejected_fixes"] <= len(OUTLIERS) + 1
+    assert len(OUTLIERS) <= results["robust"].nav.graph_info.rejected_fixes <= len(OUTLIERS) + 1
 
 
 #: the target: on the simulated helicopter flights the graph's horizontal RMS is no worse than rts + 5 %
@@ -97,7 +98,7 @@ def test_graph_covers_every_row_and_frame_rts_does(flight_dir, flight_defaults):
     _, paths = flight_dir
     log = read_pos(paths["POS.txt"])
     nav = solve_graph(log, flight_defaults)
-    rts = solve_ins(inputs_from_pos(log), flight_defaults)
+    rts = solve_ins(inputs_from_pos(log), InsSettings.of(flight_defaults))
     assert np.array_equal(nav.valid, rts.valid)
     assert np.isfinite(nav.pos_var_n[nav.valid]).all() and np.isfinite(nav.att_sigma[nav.valid]).all()
     graph_table = process(paths["POS.txt"], paths["Kamera.txt"], flight_defaults.updated(method="graph")).table
@@ -135,7 +136,7 @@ def test_graph_on_kitti_outages_with_ground_vehicle_constraints():
     is at most 1.0 m (0.88 m measured; 29.7 m without either). QC still fails it against the RTS: the free lever
     arm takes up the fixes' time-tag offset (0.5 m forward) and the attitudes differ by up to 31 of the graph's
     sigma after the longest run of interpolated IMU samples; the check must keep saying so."""
-    from georef.config import ProcessingConfig
+    from georef.config import GraphSettings, ProcessingConfig
     from georef.datasets.kitti import load_kitti, score_outages, subset, withheld
     from georef.fusion.graph import solve_graph_inputs
     from georef.fusion.ins import InsInputs
@@ -143,12 +144,13 @@ def test_graph_on_kitti_outages_with_ground_vehicle_constraints():
 
     log = load_kitti()
     fixes = subset(log.gnss, ~withheld(log.gnss_time))
-    nav = solve_graph_inputs(InsInputs(time=log.time, gyro=log.gyro, accel=log.accel, gnss=fixes), ProcessingConfig())
+    nav = solve_graph_inputs(InsInputs(time=log.time, gyro=log.gyro, accel=log.accel, gnss=fixes),
+                             GraphSettings.of(ProcessingConfig()))
     v = nav.valid
     score = score_outages(log, nav.time[v], np.degrees(nav.lat[v]), np.degrees(nav.lon[v]), nav.height[v],
                           np.sqrt(nav.pos_var_n[v, 0]), np.sqrt(nav.pos_var_n[v, 1]), 0)
     assert score.withheld > 100
-    assert nav.diagnostics.ground_vehicle and nav.info["graph_nhc_factors"] >= 0.95 * nav.info["keyframes"]
+    assert nav.diagnostics.ground_vehicle and nav.graph_info.nhc_factors >= 0.95 * nav.graph_info.keyframes
     assert score.fused_rms_m <= 1.0, score
     verdict = assess(nav)
     assert "graph vs rts" in [c.name for c in verdict.failures]
@@ -206,12 +208,12 @@ def test_graph_estimates_the_lever_arm_it_is_not_told(flight_dir, flight_default
     log = read_pos(paths["POS.txt"])
     truth = np.asarray(flight.config.lever_arm_gnss_m)
     free = solve_graph(log, flight_defaults.updated(lever_arm_gnss=(0.0, 0.0, 0.0)))
-    estimate, sigma = free.info["graph_lever_arm_m"], free.info["graph_lever_arm_sigma_m"]
+    estimate, sigma = free.graph_info.lever_arm_m, free.graph_info.lever_arm_sigma_m
     assert (sigma > 0.05).all() and (sigma < 2.0).all()
     assert (np.abs(estimate - truth) < 3.0 * sigma).all(), (estimate, sigma)
     told = solve_graph(log, flight_defaults)
-    assert (np.abs(told.info["graph_lever_arm_m"] - truth) < 0.1).all()
-    assert (told.info["graph_lever_arm_sigma_m"] <= 0.05 + 1e-9).all()
+    assert (np.abs(told.graph_info.lever_arm_m - truth) < 0.1).all()
+    assert (told.graph_info.lever_arm_sigma_m <= 0.05 + 1e-9).all()
 
 
 def test_graph_lever_arm_check_judges_the_data_against_the_given_lever_arm(flight_dir, flight_defaults):
@@ -238,7 +240,7 @@ def test_graph_lever_arm_check_judges_the_data_against_the_given_lever_arm(fligh
     assert "GNSS lever arm z (down)" in check.message and "lever arm x" not in check.message \
         and "lever arm y" not in check.message
     assert f"the configuration says {-truth[2]:.2f} +- 0.05 m" in check.message
-    assert abs(flipped.info["graph_lever_arm_m"][2] + truth[2]) < 0.1   # the prior held the applied one there
+    assert abs(flipped.graph_info.lever_arm_m[2] + truth[2]) < 0.1   # the prior held the applied one there
     assert not assess(flipped).passed
 
 
@@ -386,14 +388,14 @@ def test_graph_fits_its_noise_with_the_lever_arm_the_data_show(tmp_path):
 
     flight, log, cfg = _ppk_flight(tmp_path, 180.0)
     untold = cfg.updated(lever_arm_gnss=(0.0, 0.0, 0.0))
-    rts = solve_ins(inputs_from_pos(log), untold, smooth=True)
+    rts = solve_ins(inputs_from_pos(log), InsSettings.of(untold), smooth=True)
     first = rts.diagnostics.noise.r_scale_h
     assert first > 3.0
     graph = solve_graph(log, untold)
     assert graph.diagnostics.noise.r_scale_h < 1.5
     truth = np.asarray(flight.config.lever_arm_gnss_m)
-    assert np.all(np.abs(graph.info["graph_noise_refit_lever_arm_m"] - truth) < 0.15)
-    estimate, sigma = graph.info["graph_lever_arm_m"], graph.info["graph_lever_arm_sigma_m"]
+    assert np.all(np.abs(graph.graph_info.noise_refit_lever_arm_m - truth) < 0.15)
+    estimate, sigma = graph.graph_info.lever_arm_m, graph.graph_info.lever_arm_sigma_m
     assert np.all(np.abs(estimate - truth) < 3.0 * sigma), (estimate, sigma)
     np.testing.assert_array_equal(graph.diagnostics.lever_arm_given, 0.0)
 
@@ -406,12 +408,12 @@ def test_graph_estimates_the_yaw_gyro_scale_factor_in_turns(tmp_path):
     from georef.fusion.graph import solve_graph
 
     _, log, cfg = _ppk_flight(tmp_path, 300.0, gyro_scale_ppm=(0.0, 0.0, 3000.0))
-    info = solve_graph(log, cfg.updated(method="graph", graph_scale_factor_sigma=0.002)).info
-    gyro, gyro_sigma = info["graph_gyro_scale_ppm"], info["graph_gyro_scale_sigma_ppm"]
+    scale = solve_graph(log, cfg.updated(method="graph", graph_scale_factor_sigma=0.002)).graph_info.scale_factors
+    gyro, gyro_sigma = scale.gyro_ppm, scale.gyro_sigma_ppm
     assert gyro_sigma[2] < 500.0
     assert abs(gyro[2] - 3000.0) < 3.0 * gyro_sigma[2], (gyro, gyro_sigma)
-    others = np.concatenate([info["graph_accel_scale_ppm"], gyro[:2]])
-    others_sigma = np.concatenate([info["graph_accel_scale_sigma_ppm"], gyro_sigma[:2]])
+    others = np.concatenate([scale.accel_ppm, gyro[:2]])
+    others_sigma = np.concatenate([scale.accel_sigma_ppm, gyro_sigma[:2]])
     assert np.all(np.abs(others) < 3.0 * others_sigma), (others, others_sigma)
 
 

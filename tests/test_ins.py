@@ -251,7 +251,7 @@ def test_attitude_source_imu_ignores_the_units_angles(tmp_path):
     paths = write_flight(flight, tmp_path)
     cfg = installation_config(flight).updated(method="rts", attitude_source="imu")
     result = process(paths["POS.txt"], paths["Kamera.txt"], cfg)
-    assert result.nav.info["unit_aiding"] is False
+    assert result.nav.ins_info.unit_aiding is False
     assert any("recomputed from the raw IMU" in str(n) for n in result.notices)
     figures = accuracy(frame_errors(result.table, flight.truth_frames))
     assert figures["roll_rms_deg"] <= 0.03 and figures["pitch_rms_deg"] <= 0.03

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from georef.config import ProcessingConfig
+from georef.config import InsSettings, ProcessingConfig
 from georef.evaluate import frame_errors
 from georef.frames import dcm_to_quat, euler_to_dcm, wrap_pi
 from georef.frames.rotations import dcm_to_euler
@@ -127,7 +127,7 @@ def test_spectral_floor_reads_the_injected_white_noise(tmp_path, kind, level):
     inputs = inputs_from_pos(read_pos(paths["POS.txt"]))
     t, gyro, accel = inputs.time, inputs.gyro, inputs.accel
     q_vel_h, q_vel_v, q_att_h, q_att_v = spectral_white_noise(t, gyro, accel)
-    model = ProcessingConfig().imu_error_model()
+    model = InsSettings.of(ProcessingConfig()).imu_error_model()
     q_att = model.gyro_white_psd
     q_vel = model.accel_white_psd
     if kind == "white":
@@ -171,7 +171,7 @@ def _alignment_of(sim: SimConfig, tmp_path):
     flight = simulate(sim)
     paths = write_flight(flight, tmp_path)
     inputs = inputs_from_pos(read_pos(paths["POS.txt"]), use_unit_attitude=False)
-    cfg = installation_config(flight)
+    cfg = InsSettings.of(installation_config(flight))
     return flight, inputs, cfg
 
 

@@ -315,8 +315,8 @@ def test_eo_table_round_trip(tmp_path):
 
 
 def test_config_round_trip_and_unknown_keys(tmp_path):
-    cfg = ProcessingConfig(lever_arm_gnss=(0.5, 0.1, -1.6), boresight=(0.1, 0.2, 0.3), crs="EPSG:3765",
-                           pos_columns={"lat": "Lat"})
+    cfg = ProcessingConfig().updated(lever_arm_gnss=(0.5, 0.1, -1.6), boresight=(0.1, 0.2, 0.3), crs="EPSG:3765",
+                                     pos_columns={"lat": "Lat"})
     path = tmp_path / "flight.toml"
     path.write_text(config_to_toml(cfg))
     assert load_config(path) == cfg

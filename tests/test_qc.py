@@ -42,7 +42,7 @@ def clean(flight_dir, flight_defaults) -> ProcessResult:
 def typo(flight_dir, flight_defaults) -> ProcessResult:
     """The same flight with a 45 m typo in the GNSS lever arm's x."""
     _, paths = flight_dir
-    assert tuple(flight_defaults.lever_arm_gnss) == TRUE_LEVER
+    assert tuple(flight_defaults.mounting.lever_arm_gnss) == TRUE_LEVER
     return process(paths["POS.txt"], paths["Kamera.txt"], flight_defaults.updated(lever_arm_gnss=(45.0, 0.15, -1.65)))
 
 
@@ -108,11 +108,11 @@ def test_lever_arm_typo_fails_naming_the_lever_arm(typo):
     assert verdict.short().startswith("failed: ") and "lever arm" in verdict.short()
 
 
-@pytest.mark.slow
 def test_calibration_pass_finds_a_lever_arm_it_is_not_told(tmp_path):
     """PPK-grade fixes (2/2/4 cm), lever arm not told: the calibration pass's estimate lies within 3 of its sigmas
     of the simulated lever arm on every axis, with a vertical sigma under 0.15 m. (Its start position ignored the
     lever arm's uncertainty: z came out at -1.00 +- 0.04 m against -1.65 m.)"""
+    from georef.config import InsSettings
     from georef.fusion.ins import inputs_from_pos, solve_ins
     from georef.io.pos import read_pos
 
@@ -120,7 +120,8 @@ def test_calibration_pass_finds_a_lever_arm_it_is_not_told(tmp_path):
     flight = simulate(sim)
     paths = write_flight(flight, tmp_path)
     cfg = installation_config(flight).updated(lever_arm_gnss=(0.0, 0.0, 0.0), gnss_sigma=(0.02, 0.02, 0.04))
-    calibration = solve_ins(inputs_from_pos(read_pos(paths["POS.txt"])), cfg, smooth=True).diagnostics.calibration
+    calibration = solve_ins(inputs_from_pos(read_pos(paths["POS.txt"])), InsSettings.of(cfg),
+                            smooth=True).diagnostics.calibration
     error = np.abs(calibration.lever_arm - np.asarray(TRUE_LEVER))
     assert (error < 3.0 * calibration.lever_arm_sigma).all(), (calibration.lever_arm, calibration.lever_arm_sigma)
     assert calibration.lever_arm_sigma[2] < 0.15
@@ -236,7 +237,7 @@ def test_latency_warns_only_when_significant_and_not_given(clean):
         nav = dataclasses.replace(clean.nav, diagnostics=dataclasses.replace(diagnostics, calibration=calibration))
         return _by_name(assess(nav, clean.table, cfg or clean.config)).get("latency")
 
-    assert clean.config.gnss_latency is None
+    assert clean.config.gnss.latency is None
     significant = check(0.15, 0.02)
     assert significant.status == "warn" and "--gnss-latency 0.150" in significant.message
     assert check(0.015, 0.001).status == "pass"       # many sigmas, but under 0.02 s

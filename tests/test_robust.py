@@ -14,7 +14,7 @@ import pytest
 from georef_cli.main import app
 from typer.testing import CliRunner
 
-from georef.config import ProcessingConfig
+from georef.config import InsSettings, ProcessingConfig
 from georef.datasets.kitti import load_kitti, score_outages, subset, withheld
 from georef.evaluate import accuracy, frame_errors
 from georef.fusion.ins import InsInputs, solve_ins
@@ -48,7 +48,8 @@ def test_kitti_outages():
     remaining fixes rejected, and a claimed sigma that does not undersell the error by more than a third."""
     log = load_kitti()
     kept = subset(log.gnss, ~withheld(log.gnss_time))
-    nav = solve_ins(InsInputs(time=log.time, gyro=log.gyro, accel=log.accel, gnss=kept), ProcessingConfig())
+    nav = solve_ins(InsInputs(time=log.time, gyro=log.gyro, accel=log.accel, gnss=kept),
+                    InsSettings.of(ProcessingConfig()))
     v = nav.valid
     score = score_outages(log, nav.time[v], np.degrees(nav.lat[v]), np.degrees(nav.lon[v]), nav.height[v],
                           np.sqrt(nav.pos_var_n[v, 0]), np.sqrt(nav.pos_var_n[v, 1]),

@@ -26,7 +26,7 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from georef.config import load_configs
+from georef.config import GraphSettings, InsSettings, load_configs
 from georef.io.errors import GeorefError
 
 from .coercion import PlainCoercionCommand, PlainCoercionGroup
@@ -262,13 +262,13 @@ def process(
     _one_stdout(**{"-o": output, "--summary-json": summary_json,
                    **{f"--export {text}": spec.path for text, spec in zip(export or [], specs[1:], strict=True)}})
     frames = None
-    if cfg.crs or cfg.height != "ellipsoidal":
+    if cfg.output.crs or cfg.output.height != "ellipsoidal":
         from georef.frames.heights import OutputFrames  # pyproj only when a CRS or a geoid is asked for
 
-        frames = OutputFrames(cfg.crs, cfg.height, cfg.vertical_crs)
+        frames = OutputFrames(cfg.output.crs, cfg.output.height, cfg.output.vertical_crs)
     check_exports(specs, frames)
-    if cfg.image_names:
-        ImageNames.parse(cfg.image_names)
+    if cfg.output.image_names:
+        ImageNames.parse(cfg.output.image_names)
     progress, step = _stage_progress(quiet, total=5 if report is not None else 4)
     from georef.io.atomic import atomic_group, resolve_target
 
@@ -279,7 +279,7 @@ def process(
         result = run(pos, camera, cfg, progress=step)
         def write(spec: Any) -> None:
             write_target(spec.path, lambda path: write_export(result.table, path, spec.fmt, frames=result.frames,
-                                                              odm_angles=cfg.odm_angles))
+                                                              odm_angles=cfg.output.odm_angles))
 
         with atomic_group():  # the files and the report together, or none of them (a full disk, a refused target)
             step("writing table" if len(specs) == 1 else f"writing {len(specs)} outputs")
@@ -307,7 +307,7 @@ def process(
         if report is not None:
             outputs.append({"what": "report", "format": "html", "path": str(report)})
         write_json(summary_json, run_document(
-            "process", code, inputs={"pos": pos, "camera": camera, "config": config}, settings=cfg,
+            "process", code, inputs={"pos": pos, "camera": camera, "config": config}, settings=cfg.settings(),
             outputs=outputs, summary=result.summary(), verdict=verdict))
     if not quiet:
         messages = _messages(output, summary_json, *(spec.path for spec in specs[1:]))
@@ -563,21 +563,21 @@ def fuse(
         if method == "graph":
             from georef.fusion.graph import solve_graph_inputs
 
-            nav = solve_graph_inputs(inputs, cfg)
+            nav = solve_graph_inputs(inputs, GraphSettings.of(cfg))
         else:
-            nav = solve_ins(inputs, cfg, smooth=method == "rts")
+            nav = solve_ins(inputs, InsSettings.of(cfg), smooth=method == "rts")
         step("writing trajectory")
         write_target(output, lambda path: write_trajectory_csv(nav, path))
     verdict = assess(nav, cfg=cfg)
     code = 0 if verdict.passed else EXIT_QC_FAILED
     used = int((nav.gnss.status >= 1).sum())
     rejected = nav.gnss.rejected_lines
-    figures = solution_figures(nav, cfg)
+    figures = solution_figures(nav, cfg.gnss)
     if summary_json is not None:
         summary = {"method": method, "trajectory_rows": int(nav.valid.sum()), "gnss_fixes": len(fixes),
                    "gnss_used": used, "gnss_rejected_lines": rejected, **figures}
         write_json(summary_json, run_document(
-            "fuse", code, inputs={"imu": imu, "gnss": gnss, "config": config}, settings=cfg,
+            "fuse", code, inputs={"imu": imu, "gnss": gnss, "config": config}, settings=cfg.settings(),
             outputs=[{"what": "trajectory", "format": "csv", "path": str(output)}], summary=summary, verdict=verdict))
     if not quiet:
         to = _messages(output, summary_json)
@@ -797,8 +797,8 @@ def info(
     from georef.io.pos import read_pos
 
     cfg = load_configs(config)
-    rate = gnss_rate if gnss_rate is not None else cfg.gnss_rate_hz
-    log = read_pos(pos, column_names=cfg.pos_columns, gnss_rate_hz=rate)
+    rate = gnss_rate if gnss_rate is not None else cfg.gnss.rate_hz
+    log = read_pos(pos, column_names=cfg.pos_columns.names, gnss_rate_hz=rate)
     from rich.table import Table
 
     table = Table(title=escape(str(pos)), show_header=False, title_justify="left")

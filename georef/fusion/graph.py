@@ -15,7 +15,7 @@
 * A ground vehicle (when the EKF + RTS applied the non-holonomic constraint): zero lateral and vertical body
   velocity at every keyframe with the EKF's sigmas (:func:`_add_ground_vehicle`), linearised at the RTS
   solution, then once more at the optimum.
-* The POS unit's own attitude (``cfg.unit_aiding`` and ROLL/PITCH/YAW in the log), the same model as the EKF:
+* The POS unit's own attitude (``cfg.unit.aiding`` and ROLL/PITCH/YAW in the log), the same model as the EKF:
   a variable ``U = (e_r, e_p, d, d_dot)`` [rad, rad, rad, rad/s] per keyframe; a factor
   ``(roll + e_r, pitch + e_p, yaw - d) - (roll_u, pitch_u, yaw_u)`` with white sigma ``unit_angle_noise``
   (linearised at the RTS solution and kept as a ``LinearContainerFactor``, evaluated in C++); between
@@ -30,11 +30,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from types import ModuleType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from georef.config import ProcessingConfig
+from georef.config import GraphSettings, ProcessingConfig
 from georef.frames import (
     C_e_n,
     C_n_e,
@@ -59,7 +59,7 @@ from georef.frames.rotations import (
 from georef.fusion.increments import compensated_rates
 from georef.fusion.ins import InsInputs, _gap_scale, inputs_from_pos, solve_ins, unit_drift_psd
 from georef.fusion.ins_layout import NHC_GATE, NHC_LEVER
-from georef.fusion.solution import NavSolution
+from georef.fusion.solution import GraphCalibration, GraphInfo, NavSolution, ScaleFactors
 
 if TYPE_CHECKING:  # gtsam is imported where it is used; importing this module needs no gtsam
     import gtsam
@@ -85,29 +85,29 @@ MIN_EDGE_GAP = 0.5  # s; the first/last solved row gets its own keyframe when it
 LEVER_REFIT_MIN = 0.05
 
 
-def solve_graph(log: PosLog, cfg: ProcessingConfig) -> NavSolution:
+def solve_graph(log: PosLog, cfg: ProcessingConfig, prior: CalibrationPrior | None = None) -> NavSolution:
     """Graph smoother on a POS log (body-frame OMGS deg/s, ACCS m/s^2, GNSS antenna fixes, optionally the unit's
-    ROLL/PITCH/YAW deg): :func:`solve_graph_inputs` on :func:`georef.fusion.ins.inputs_from_pos`."""
-    return solve_graph_inputs(inputs_from_pos(log), cfg)
+    ROLL/PITCH/YAW deg): :func:`solve_graph_inputs` on :func:`georef.fusion.ins.inputs_from_pos`, with the
+    sections of ``cfg`` the graph reads."""
+    return solve_graph_inputs(inputs_from_pos(log), GraphSettings.of(cfg), prior=prior)
 
 
-def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig, noise_lever: np.ndarray | None = None) -> NavSolution:
+def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings, noise_lever: np.ndarray | None = None,
+                       prior: CalibrationPrior | None = None) -> NavSolution:
     """Graph smoother on INS inputs (a POS log's or ``georef fuse``'s imu.csv and gnss.csv). Returns a
     :class:`NavSolution` at every IMU row that the EKF + RTS solves: ECEF position [m] and velocity [m/s], geodetic
     lat/lon [rad] and height [m], body-to-NED roll/pitch/yaw [rad], NED position variances [m^2], NED
     attitude-error covariance [rad^2] and Euler sigmas [rad]. ``noise_lever`` [m, body]: the GNSS lever arm the
     EKF + RTS apply instead of the configured one (set by the run itself when its robust pass finds the lever arm
-    elsewhere, :func:`_noise_refit`); the graph's own lever-arm prior stays the configured one."""
+    elsewhere, :func:`_noise_refit`); the graph's own lever-arm prior stays the configured one. ``prior``: a
+    campaign's prior on the calibration variable replacing the configured one (:func:`calibration_prior`)."""
     import gtsam
     from gtsam.symbol_shorthand import B, U, V, X
 
     # the lever arm the EKF + RTS applies, and so fits its noise model with: the configured one, or
     # ``noise_lever``, the robust pass's estimate when that differs from the configured one (:func:`_noise_refit`)
     rts_lever = np.asarray(cfg.lever_arm_gnss if noise_lever is None else noise_lever, float)
-    rts = solve_ins(inputs, cfg if noise_lever is None else
-                    cfg.updated(lever_arm_gnss=tuple(float(v) for v in noise_lever)), smooth=True)
-    if noise_lever is not None:
-        rts.info["graph_noise_refit_lever_arm_m"] = rts_lever
+    rts = solve_ins(inputs, cfg if noise_lever is None else cfg.with_lever_arm(noise_lever), smooth=True)
     t = rts.time
     valid_rows = np.flatnonzero(rts.valid)
     gnss = inputs.gnss
@@ -135,13 +135,13 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig, noise_lever: np
     C_b_t = C_n_t_rows @ euler_to_dcm(rts.roll, rts.pitch, rts.yaw)
     p_t = to_plane(rts.r_e)
     v_t = rts.v_e @ C_e_t.T  # ECEF velocity into the tangent plane
-    gyro_bias, accel_bias = rts.info["gyro_bias"], rts.info["accel_bias"]
+    gyro_bias, accel_bias = rts.ins_info.gyro_bias, rts.ins_info.accel_bias
     for k, row in enumerate(key_rows):
         values.insert(X(k), gtsam.Pose3(gtsam.Rot3(C_b_t[row]), p_t[row]))
         values.insert(V(k), v_t[row])
         values.insert(B(k), gtsam.imuBias.ConstantBias(accel_bias[row], gyro_bias[row]))
     first = key_rows[0]
-    prior_mean, prior_cov = calibration_prior(cfg)
+    prior_mean, prior_cov = calibration_prior(cfg, prior)
     # loose priors at the first keyframe: the RTS's position there rests on the lever arm it applied, so its prior
     # also allows for the lever-arm prior's uncertainty and its distance from the configured one (else an untold
     # lever arm is pulled towards zero: 10 sigma in z on a PPK flight, 12 sigma under a campaign's prior)
@@ -164,7 +164,7 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig, noise_lever: np
     # per-interval rates with the strapdown's rotation, sculling and coning corrections: GTSAM holds the attitude
     # at the start of each step (georef.fusion.increments; without them the graph lost 3-7 % to rts)
     accel_step, gyro_step = compensated_rates(t, gyro, accel, gyro_bias, accel_bias)
-    scale_sigma = cfg.graph_scale_factor_sigma
+    scale_sigma = cfg.graph.scale_factor_sigma
     # B(k) is the bias the IMU factor of the interval from keyframe k to k + 1 corrects its rates by: the sensor's
     # bias plus, with scale factors, diag(mean rates over the interval) s (:func:`_bias_factor`)
     mean_rates = _interval_means(t, key_rows, np.hstack([accel_step, gyro_step]))
@@ -187,18 +187,18 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig, noise_lever: np
             gtsam.ImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), pim),
             _bias_factor(gtsam, B(k - 1), B(k), _bias_drive(noise, scale[1]) * (t[b] - t[a]),
                          rate_change if scale_sigma > 0 else None, values)])
-    if cfg.unit_aiding and inputs.unit_rpy is not None:
+    if cfg.unit.aiding and inputs.unit_rpy is not None:
         _add_unit_attitude(gtsam, U, X, inputs.unit_rpy, rts, t, key_rows, C_n_t_rows, cfg, values, factors_at)
     nhc_sigma = _add_ground_vehicle(gtsam, X, V, rts, gyro, key_rows, values, factors_at)
     # the calibration variables (the GNSS lever arm [m, body] and the GNSS time offset [s]: each fix was measured
     # that long before its time tag, the EKF's ``gnss_latency``) with their prior; GNSS antenna fixes with the
     # sigmas the EKF + RTS fitted to this flight (the configured ones scaled by the fitted variance factors)
-    sigma = np.asarray(cfg.gnss_sigma) * np.sqrt([noise.r_scale_h, noise.r_scale_h, noise.r_scale_v])
+    sigma = np.asarray(cfg.gnss.sigma) * np.sqrt([noise.r_scale_h, noise.r_scale_h, noise.r_scale_v])
     fixes = _fixes_at_keyframes(gnss, use, t, key_rows, to_plane)
     calibration = rts.diagnostics.calibration
     lever_start = np.asarray(calibration.lever_arm if calibration is not None else prior_mean[:3], float)
     start = gtsam.Values(values)
-    if cfg.graph_robust:
+    if cfg.graph.robust:
         # robust pass: a Cauchy kernel on every fix, the lever arm a variable, the time offset held at its prior
         # mean; the fixes it leaves as outliers are then dropped and the graph refitted with Gaussian factors
         kernel = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(CAUCHY_K),
@@ -214,12 +214,12 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig, noise_lever: np
         lever_start = np.asarray(start.atPoint3(LEVER), float)
         start.erase(LEVER)
         if noise_lever is None and _noise_refit(lever_start, rts_lever, cfg):
-            nav = solve_graph_inputs(inputs, cfg, noise_lever=lever_start)
+            nav = solve_graph_inputs(inputs, cfg, noise_lever=lever_start, prior=prior)
             # the quality checks compare what the data show with the user's configuration, not with the refit's
             nav.diagnostics.calibration = rts.diagnostics.calibration
             nav.diagnostics.lever_arm_given = rts.diagnostics.lever_arm_given
             return nav
-    inlier = _inliers(start, fixes, lever_start, prior_mean[3], sigma, cfg.gate_chi2) if cfg.graph_robust else \
+    inlier = _inliers(start, fixes, lever_start, prior_mean[3], sigma, cfg.gnss_gate.chi2) if cfg.graph.robust else \
         np.ones(len(fixes.key), bool)
     start.insert(CALIBRATION, np.concatenate([lever_start, prior_mean[3:]]))
     gnss_factors: dict[int, list] = {0: [gtsam.PriorFactorVector(CALIBRATION, prior_mean,
@@ -231,7 +231,7 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig, noise_lever: np
     for k in range(len(key_rows)):
         for factor in factors_at.get(k, []) + gnss_factors.get(k, []):
             graph.add(factor)
-    if nhc_sigma and cfg.graph_solver != "isam2":
+    if nhc_sigma and cfg.graph.solver != "isam2":
         result = _relinearise_ground_vehicle(gtsam, X, V, graph, result, nhc_sigma)
     marginals = _QrMarginals(gtsam, graph, result)
 
@@ -272,7 +272,6 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig, noise_lever: np
     valid = rts.valid.copy()  # rows beyond the end keyframes (< MIN_EDGE_GAP) take the end keyframes' corrections
     for array in (r_e, v_e, pos_var_rows, att_sigma):
         array[~valid] = np.nan
-    info = dict(rts.info)
     # the graph against the RTS it started from, in units of the graph's own horizontal sigma at each keyframe:
     # both smoothers carry the same information, so a separation of several sigma means one of them went wrong
     separation = np.hypot(d_pos[:, 0], d_pos[:, 1]) / np.sqrt(pos_var[:, 0] + pos_var[:, 1])
@@ -282,24 +281,24 @@ def solve_graph_inputs(inputs: InsInputs, cfg: ProcessingConfig, noise_lever: np
     attitude_separation = np.max(np.abs(d_rot_n) / np.sqrt(np.diagonal(att_cov, axis1=1, axis2=2)), axis=1)
     estimate = np.asarray(result.atVector(CALIBRATION), float)
     covariance = marginals.marginalCovariance(CALIBRATION)
+    scale_factors = None
     if scale_sigma > 0:
         scale, scale_sigmas = np.asarray(result.atVector(SCALE), float), np.sqrt(np.diag(
             marginals.marginalCovariance(SCALE)))
-        info.update({"graph_accel_scale_ppm": scale[:3] * 1e6, "graph_accel_scale_sigma_ppm": scale_sigmas[:3] * 1e6,
-                     "graph_gyro_scale_ppm": scale[3:] * 1e6, "graph_gyro_scale_sigma_ppm": scale_sigmas[3:] * 1e6,
-                     "graph_scale_prior_sigma_ppm": scale_sigma * 1e6})
-    info.update({"graph_lever_arm_m": estimate[:3], "graph_lever_arm_sigma_m": np.sqrt(np.diag(covariance)[:3]),
-                 "graph_time_offset_s": float(estimate[3]),
-                 "graph_time_offset_sigma_s": float(np.sqrt(covariance[3, 3])),
-                 "graph_calibration": {"mean": estimate, "covariance": covariance, "prior_mean": prior_mean,
-                                       "prior_covariance": prior_cov},
-                 "graph_rejected_fixes": int(np.sum(~inlier)), "graph_fixes": len(inlier),
-                 "graph_rts_separation_sigma": separation,
-                 "graph_rts_attitude_separation_sigma": attitude_separation, "keyframes": n_keys,
-                 "graph_nhc_factors": len(nhc_sigma), "graph_error_final": graph.error(result)})
+        scale_factors = ScaleFactors(accel_ppm=scale[:3] * 1e6, accel_sigma_ppm=scale_sigmas[:3] * 1e6,
+                                     gyro_ppm=scale[3:] * 1e6, gyro_sigma_ppm=scale_sigmas[3:] * 1e6,
+                                     prior_sigma_ppm=scale_sigma * 1e6)
+    info = GraphInfo(lever_arm_m=estimate[:3], lever_arm_sigma_m=np.sqrt(np.diag(covariance)[:3]),
+                     time_offset_s=float(estimate[3]), time_offset_sigma_s=float(np.sqrt(covariance[3, 3])),
+                     calibration=GraphCalibration(mean=estimate, covariance=covariance, prior_mean=prior_mean,
+                                                  prior_covariance=prior_cov),
+                     rejected_fixes=int(np.sum(~inlier)), fixes=len(inlier), rts_separation_sigma=separation,
+                     rts_attitude_separation_sigma=attitude_separation, keyframes=n_keys,
+                     nhc_factors=len(nhc_sigma), error_final=graph.error(result), scale_factors=scale_factors,
+                     noise_refit_lever_arm_m=rts_lever if noise_lever is not None else None)
     return NavSolution(method="graph", time=t, r_e=r_e, v_e=v_e, lat=lat, lon=lon, height=height, roll=roll,
                        pitch=pitch, yaw=yaw, pos_var_n=pos_var_rows, att_sigma=att_sigma, valid=valid, gnss=rts.gnss,
-                       info=info, att_cov_n=att_cov_rows, diagnostics=rts.diagnostics)
+                       ins_info=rts.ins_info, graph_info=info, att_cov_n=att_cov_rows, diagnostics=rts.diagnostics)
 
 
 class _QrMarginals:
@@ -323,6 +322,9 @@ class _QrMarginals:
         return np.linalg.inv(self._tree.marginalFactor(key, self._gtsam.EliminateQR).information())
 
 
+#: a campaign's prior on the calibration variable: (mean (4,), covariance (4, 4)), lever arm [m, body] and GNSS time
+#: offset [s]; not a flight.toml setting but an estimate from the campaign's other flights (georef.campaign)
+CalibrationPrior = tuple[Any, Any]
 LEVER_ARM_GIVEN_SIGMA = 0.05  # m, a lever arm taped on the installation
 LEVER_ARM_FREE_SIGMA = 10.0  # m, no lever arm given: only keeps the variable determinate
 TIME_OFFSET_GIVEN_SIGMA = 0.01  # s, a GNSS latency given in the configuration
@@ -339,24 +341,24 @@ LEVER = 0x6C00000000000000  # gtsam.symbol("l", 0): the lever arm alone (Point3)
 SCALE = 0x7300000000000000  # gtsam.symbol("s", 0)
 
 
-def calibration_prior(cfg: ProcessingConfig) -> tuple[np.ndarray, np.ndarray]:
+def calibration_prior(cfg: GraphSettings, prior: CalibrationPrior | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The graph's prior on its calibration variable ``(lever arm x, y, z [m, body], time offset [s])``: mean (4,)
     and covariance (4, 4).
 
-    ``cfg.calibration_prior`` (a campaign's estimate) when set; else the given lever arm with
-    ``cfg.lever_arm_gnss_sigma`` (0.05 m when a lever arm is given, free, 10 m, without one) and the given
-    ``gnss_latency`` with ``cfg.gnss_latency_sigma`` (0.01 s when given, else zero with 2 ms), uncorrelated.
+    ``prior`` (a campaign's estimate, ``georef batch --shared-calibration``) when given; else the given lever arm
+    with ``cfg.lever_arm_gnss_sigma`` (0.05 m when a lever arm is given, free, 10 m, without one) and the given
+    ``gnss.latency`` with ``cfg.gnss.latency_sigma`` (0.01 s when given, else zero with 2 ms), uncorrelated.
     """
-    if cfg.calibration_prior is not None:
-        mean, covariance = cfg.calibration_prior
+    if prior is not None:
+        mean, covariance = prior
         return np.asarray(mean, float).reshape(4), np.asarray(covariance, float).reshape(4, 4)
     lever_sigma = cfg.lever_arm_gnss_sigma
     if lever_sigma is None:
         lever_sigma = LEVER_ARM_GIVEN_SIGMA if any(v != 0.0 for v in cfg.lever_arm_gnss) else LEVER_ARM_FREE_SIGMA
-    offset_sigma = cfg.gnss_latency_sigma
+    offset_sigma = cfg.gnss.latency_sigma
     if offset_sigma is None:
-        offset_sigma = TIME_OFFSET_GIVEN_SIGMA if cfg.gnss_latency is not None else TIME_OFFSET_DEFAULT_SIGMA
-    mean = np.array([*cfg.lever_arm_gnss, cfg.gnss_latency or 0.0])
+        offset_sigma = TIME_OFFSET_GIVEN_SIGMA if cfg.gnss.latency is not None else TIME_OFFSET_DEFAULT_SIGMA
+    mean = np.array([*cfg.lever_arm_gnss, cfg.gnss.latency or 0.0])
     sigmas = np.concatenate([np.broadcast_to(np.asarray(lever_sigma, float), 3), [offset_sigma]])
     return mean, np.diag(sigmas**2)
 
@@ -429,7 +431,7 @@ def _kept_linear(gtsam: ModuleType, linear: gtsam.JacobianFactor,
 def _inliers(values: gtsam.Values, fixes: _Fixes, lever: np.ndarray, offset: float, sigma: np.ndarray,
              threshold: float) -> np.ndarray:
     """Fixes whose whitened residual after the robust pass is within ``threshold`` (chi-square, 3 degrees of
-    freedom; ``cfg.gate_chi2``, 99.9 % by default: one good fix in a thousand is lost). The residual is against
+    freedom; ``cfg.gnss_gate.chi2``, 99.9 % by default: one good fix in a thousand is lost). The residual is against
     the robust solution, which the fix itself pulled only weakly (the Cauchy kernel)."""
     from gtsam.symbol_shorthand import V, X
 
@@ -441,11 +443,11 @@ def _inliers(values: gtsam.Values, fixes: _Fixes, lever: np.ndarray, offset: flo
     return d2 <= threshold
 
 
-def _optimise(gtsam: ModuleType, cfg: ProcessingConfig, factors_at: dict[int, list], extra: dict[int, list],
+def _optimise(gtsam: ModuleType, cfg: GraphSettings, factors_at: dict[int, list], extra: dict[int, list],
               values: gtsam.Values, n_keys: int) -> gtsam.Values:
     """Optimise the graph of ``factors_at`` and ``extra`` (factors by keyframe) from ``values``: batch
-    Levenberg-Marquardt, or ISAM2 fed one keyframe at a time (``cfg.graph_solver``) as a real-time user would."""
-    if cfg.graph_solver != "isam2":
+    Levenberg-Marquardt, or ISAM2 fed one keyframe at a time (``cfg.graph.solver``) as a real-time user would."""
+    if cfg.graph.solver != "isam2":
         graph = gtsam.NonlinearFactorGraph()
         for k in range(n_keys):
             for factor in factors_at.get(k, []) + extra.get(k, []):
@@ -547,7 +549,7 @@ def _process_noise_scale(rts: NavSolution, inputs: InsInputs) -> np.ndarray:
 
 
 
-def _noise_refit(lever: np.ndarray, applied: np.ndarray, cfg: ProcessingConfig) -> bool:
+def _noise_refit(lever: np.ndarray, applied: np.ndarray, cfg: GraphSettings) -> bool:
     """Whether the robust pass's GNSS lever arm ``lever`` [m, body] is far enough from the one the EKF + RTS
     ``applied`` to run them again with it: more than ``LEVER_REFIT_MIN`` and the configured horizontal fix sigma
     on some axis.
@@ -558,7 +560,7 @@ def _noise_refit(lever: np.ndarray, applied: np.ndarray, cfg: ProcessingConfig) 
     the lever arm itself, then weighted its fixes 2.5 times too loosely in sigma and claimed lever-arm sigmas
     1.4-1.9 times its errors (RMS error/sigma 0.53/0.74/0.56 over 20 flights). The EKF's own calibration pass is
     no substitute: on a 3-minute flight it put z at -1.00 +- 0.04 m against -1.65, moving in steps."""
-    threshold = max(LEVER_REFIT_MIN, float(cfg.gnss_sigma[0]))
+    threshold = max(LEVER_REFIT_MIN, float(cfg.gnss.sigma[0]))
     return bool(np.any(np.abs(lever - applied) > threshold))
 
 
@@ -638,7 +640,7 @@ def _add_ground_vehicle(gtsam: ModuleType, X: Symbol, V: Symbol, rts: NavSolutio
                         key_rows: np.ndarray, values: gtsam.Values,
                         factors_at: dict[int, list]) -> dict[int, np.ndarray]:
     """Non-holonomic factors (:func:`_nhc_factor`) at every keyframe when the EKF + RTS applied the constraint
-    (``cfg.vehicle = "ground"``, or ``"auto"`` and its ground-vehicle test passed), with its variances: the fitted
+    (``cfg.ins.vehicle = "ground"``, or ``"auto"`` and its ground-vehicle test passed), with its variances: the fitted
     ``r_nhc`` [m^2/s^2] plus, as the EKF, the IMU's motion about the point ``NHC_LEVER`` [m] away where the
     constraint holds (yaw rate for the lateral, pitch rate for the vertical; gyro minus the RTS gyro bias).
     Keyframes where the RTS solution itself violates the constraint beyond the EKF's gate (a skid) get none.
@@ -646,7 +648,7 @@ def _add_ground_vehicle(gtsam: ModuleType, X: Symbol, V: Symbol, rts: NavSolutio
     if not rts.diagnostics.ground_vehicle:
         return {}
     r_nhc = rts.diagnostics.noise.r_nhc
-    rate = gyro[key_rows] - rts.info["gyro_bias"][key_rows]
+    rate = gyro[key_rows] - rts.ins_info.gyro_bias[key_rows]
     sigma = np.sqrt(r_nhc + (NHC_LEVER * rate[:, [2, 1]]) ** 2)
     added = {}
     for k in range(len(key_rows)):
@@ -703,12 +705,12 @@ def _linear(gtsam: ModuleType, keys: list[int], blocks: list[np.ndarray], b: np.
 
 
 def _add_unit_attitude(gtsam: ModuleType, U: Symbol, X: Symbol, unit_rpy: np.ndarray, rts: NavSolution, t: np.ndarray,
-                       key_rows: np.ndarray, C_n_t_rows: np.ndarray, cfg: ProcessingConfig, values: gtsam.Values,
+                       key_rows: np.ndarray, C_n_t_rows: np.ndarray, cfg: GraphSettings, values: gtsam.Values,
                        factors_at: dict[int, list]) -> None:
     """Unit-attitude variables ``U(k) = (e_r, e_p, d, d_dot)`` [rad, rad/s] and their factors (see the module)."""
-    level = np.radians(cfg.unit_level_sigma)
-    tau = cfg.unit_level_time
-    q_drift = unit_drift_psd(cfg)  # rad^2/s^3, as the EKF
+    level = np.radians(cfg.unit.level_sigma)
+    tau = cfg.unit.level_time
+    q_drift = unit_drift_psd(cfg.unit)  # rad^2/s^3, as the EKF
     z = unit_rpy[key_rows]
     e_level = z[:, :2] - np.stack([rts.roll[key_rows], rts.pitch[key_rows]], -1)
     d = np.unwrap(wrap_pi(rts.yaw[key_rows] - z[:, 2]))
@@ -726,7 +728,7 @@ def _add_unit_attitude(gtsam: ModuleType, U: Symbol, X: Symbol, unit_rpy: np.nda
                                         np.array([pose.rotation().matrix() for pose in poses]), u_values, z)
     for k in range(len(key_rows)):
         factors_at.setdefault(k, []).append(_unit_factor(gtsam, X(k), U(k), errors[k], H_rot[k], poses[k],
-                                                         u_values[k], np.radians(cfg.unit_angle_noise)))
+                                                         u_values[k], np.radians(cfg.unit.angle_noise)))
     # priors at the first keyframe: the level errors' stationary Gauss-Markov sigma; the yaw origin is free (pi,
     # only to keep the first incremental update determinate), its drift within the EKF's default 2 deg/min
     prior_sigma = np.array([level, level, np.pi, DRIFT_PRIOR])

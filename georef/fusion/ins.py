@@ -17,8 +17,8 @@ or the generic ``imu.csv``) and GNSS antenna fixes; optionally the POS unit's ow
    (covariance epochs at the GNSS rate, the IMU block-averaged to about 10 Hz). A ground vehicle is recognised
    from its motion and gets the non-holonomic constraint. A last pass carries the GNSS lever arm and time-tag
    latency as states with loose priors: what the data say about them, checked against the given values.
-4. **Final pass** at ``cfg.covariance_rate`` with the fitted noise, the given lever arm and the given latency,
-   the chi-square gate ``cfg.gate_chi2``.
+4. **Final pass** at ``cfg.ins.covariance_rate`` with the fitted noise, the given lever arm and the given latency,
+   the chi-square gate ``cfg.gnss_gate.chi2``.
 
 Recovery, in every pass: a run of rejected fixes (two after a GNSS outage or an IMU gap, else
 ``MAX_CONSECUTIVE_REJECTS``) means the model under-predicted the error growth since the last fix; that stretch
@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from georef.align import GnssEpochs
-from georef.config import ProcessingConfig
+from georef.config import InsSettings, ProcessingConfig, UnitSection
 from georef.frames import C_e_n, C_n_e, dcm_to_quat, euler_to_dcm, geodetic_to_ecef
 from georef.frames.mounting import lever_arm_ecef
 from georef.frames.rotations import dcm_to_euler, euler_error_jacobian, quat_to_dcm, wrap_pi
@@ -52,7 +52,7 @@ from georef.fusion.noise import (
     inflated,
     starting_point,
 )
-from georef.fusion.solution import ForwardSeparation, GnssUse, NavSolution
+from georef.fusion.solution import ForwardSeparation, GnssUse, InsInfo, NavSolution
 from georef.io.errors import GeorefError
 from georef.kernels import load as load_kernel
 
@@ -84,7 +84,7 @@ EM_ITERATIONS = 5
 EM_TOLERANCE = 0.05
 #: when the estimation's first smoothed pass diverges, its process noise is raised tenfold up to this many times
 INFLATE_TRIES = 4
-#: ground-vehicle test (``cfg.vehicle = "auto"``): speed [m/s], median lateral/speed, rms vertical body
+#: ground-vehicle test (``cfg.ins.vehicle = "auto"``): speed [m/s], median lateral/speed, rms vertical body
 #: velocity [m/s], share of the log moving
 GROUND_MIN_SPEED = 3.0
 GROUND_MAX_SLIP = 0.03
@@ -227,7 +227,7 @@ class _Pass:
     forward: tuple[np.ndarray, np.ndarray] | None = None
 
 
-def _fix_table(inputs: InsInputs, cfg: ProcessingConfig, start_row: int) -> _Fixes:
+def _fix_table(inputs: InsInputs, cfg: InsSettings, start_row: int) -> _Fixes:
     gnss, t = inputs.gnss, inputs.time
     use = np.flatnonzero((gnss.time > t[start_row]) & (gnss.time <= t[-1]))
     row = np.searchsorted(t, gnss.time[use], side="left")
@@ -236,9 +236,9 @@ def _fix_table(inputs: InsInputs, cfg: ProcessingConfig, start_row: int) -> _Fix
     return _Fixes(row=row, lag=t[row] - gnss.time[use], z=z, r=sigma**2, index=use)
 
 
-def _fix_sigmas(gnss: GnssEpochs, cfg: ProcessingConfig) -> np.ndarray:
-    """NED sigmas [m] of every fix: the file's own where given, else ``cfg.gnss_sigma``."""
-    default = np.tile(np.asarray(cfg.gnss_sigma, float), (len(gnss), 1))
+def _fix_sigmas(gnss: GnssEpochs, cfg: InsSettings) -> np.ndarray:
+    """NED sigmas [m] of every fix: the file's own where given, else ``cfg.gnss.sigma``."""
+    default = np.tile(np.asarray(cfg.gnss.sigma, float), (len(gnss), 1))
     if gnss.sigma_neu is None:
         return default
     return np.where(np.isfinite(gnss.sigma_neu), gnss.sigma_neu, default)
@@ -293,20 +293,20 @@ def _gap_scale(time: np.ndarray, gaps: list[tuple[int, int]], noise: NoiseModel)
     return scale
 
 
-def unit_drift_psd(cfg: ProcessingConfig) -> float:
+def unit_drift_psd(unit: UnitSection) -> float:
     """Density [rad^2/s^3] of the random walk of the unit's yaw-origin drift rate, from
-    ``cfg.unit_drift_change`` [deg/min per sqrt(min)]."""
-    return float((np.radians(cfg.unit_drift_change) / 60.0 / np.sqrt(60.0)) ** 2)
+    ``unit.drift_change`` [deg/min per sqrt(min)]."""
+    return float((np.radians(unit.drift_change) / 60.0 / np.sqrt(60.0)) ** 2)
 
 
-def noise_prior(cfg: ProcessingConfig) -> NoiseModel:
+def noise_prior(cfg: InsSettings) -> NoiseModel:
     """The datasheet prior of ``cfg`` (IMU preset + overrides, the unit's error settings)."""
-    return datasheet_prior(cfg.imu_error_model(), cfg.unit_level_sigma, cfg.unit_level_time, unit_drift_psd(cfg),
-                           cfg.unit_angle_noise)
+    return datasheet_prior(cfg.imu_error_model(), cfg.unit.level_sigma, cfg.unit.level_time, unit_drift_psd(cfg.unit),
+                           cfg.unit.angle_noise)
 
 
 # ---- alignment and its fallbacks ---------------------------------------------------------------------------
-def initial_alignment(inputs: InsInputs, cfg: ProcessingConfig, start_time: float | None = None,
+def initial_alignment(inputs: InsInputs, cfg: InsSettings, start_time: float | None = None,
                       bias_g: np.ndarray | None = None, bias_a: np.ndarray | None = None) -> Alignment:
     """Alignment from the motion; when the motion never shows the heading, the best other heading source."""
     gnss = inputs.gnss
@@ -351,7 +351,7 @@ def initial_alignment(inputs: InsInputs, cfg: ProcessingConfig, start_time: floa
     return result
 
 
-def _unit_yaw_origin(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignment) -> None:
+def _unit_yaw_origin(inputs: InsInputs, cfg: InsSettings, alignment: Alignment) -> None:
     """With the POS unit's level accelerations (IACC): its yaw origin recovered against GNSS over the whole flight
     (:mod:`georef.fusion.yaw_offset`), which the filter does not otherwise see (it has the unit's yaw only
     relative to an origin). When it agrees with the motion's heading (within 3 sigma), the start heading becomes
@@ -366,9 +366,9 @@ def _unit_yaw_origin(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignm
     # 2-deg sigma, and the yaw got worse (today's 20 flights: 0.092 deg against 0.057).
     try:
         solution = recover_yaw_offset(gnss.time, gnss.lat_deg, gnss.lon_deg, gnss.height, inputs.time, inputs.iacc,
-                                      inputs.unit_rpy, np.asarray(cfg.lever_arm_gnss), cfg.gnss_sigma[:2],
-                                      window=cfg.yaw_window, step=cfg.yaw_step,
-                                      bandwidth=cfg.yaw_bandwidth)
+                                      inputs.unit_rpy, np.asarray(cfg.lever_arm_gnss), cfg.gnss.sigma[:2],
+                                      window=cfg.yaw_offset.window, step=cfg.yaw_offset.step,
+                                      bandwidth=cfg.yaw_offset.bandwidth)
     except ValueError:
         return
     row = alignment.start_row
@@ -378,7 +378,7 @@ def _unit_yaw_origin(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignm
     # its sigmas are widened by sqrt(window / step) (2 with the defaults). Taken at face value, the prior made
     # the yaw overconfident under white vibration (20 flights: 83 % of yaw errors inside 2 sigma; widened 91 %,
     # with the rotor flights' yaw RMS unchanged, 0.057 deg).
-    widen = float(np.sqrt(max(cfg.yaw_window / cfg.yaw_step, 1.0)))
+    widen = float(np.sqrt(max(cfg.yaw_offset.window / cfg.yaw_offset.step, 1.0)))
     sigma = max(float(offset_sigma[0]) * widen, np.radians(0.05))
     roll, pitch, yaw = dcm_to_euler(alignment.C_b_n)
     if abs(float(wrap_pi(heading - yaw))) > 3.0 * np.hypot(sigma, alignment.heading_sigma):
@@ -390,14 +390,14 @@ def _unit_yaw_origin(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignm
     alignment.heading_source += f"; unit yaw origin from IACC ({np.degrees(sigma):.2f} deg)"
 
 
-def _datasheet_bias_sigma(cfg: ProcessingConfig) -> tuple[float, float]:
+def _datasheet_bias_sigma(cfg: InsSettings) -> tuple[float, float]:
     """Turn-on plus instability sigmas of the gyro [rad/s] and accelerometer [m/s^2] biases of the preset."""
     model = cfg.imu_error_model()
     return (float(np.hypot(model.gyro_turn_on_sigma, model.gyro_markov_sigma)),
             float(np.hypot(model.accel_turn_on_sigma, model.accel_markov_sigma)))
 
 
-def _other_heading(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignment):
+def _other_heading(inputs: InsInputs, cfg: InsSettings, alignment: Alignment):
     """(heading [rad], sigma [rad], description) at the alignment's start row, or (None, None, None)."""
     row = alignment.start_row
     roll, pitch, _ = dcm_to_euler(alignment.C_b_n)
@@ -408,8 +408,8 @@ def _other_heading(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignmen
         try:
             solution = recover_yaw_offset(gnss.time, gnss.lat_deg, gnss.lon_deg, gnss.height, inputs.time,
                                           inputs.iacc, inputs.unit_rpy, np.asarray(cfg.lever_arm_gnss),
-                                          cfg.gnss_sigma[:2], window=cfg.yaw_window, step=cfg.yaw_step,
-                                          bandwidth=cfg.yaw_bandwidth)
+                                          cfg.gnss.sigma[:2], window=cfg.yaw_offset.window, step=cfg.yaw_offset.step,
+                                          bandwidth=cfg.yaw_offset.bandwidth)
             offset, offset_sigma = solution.at(np.array([inputs.time[row]]))
             return (float(wrap_pi(inputs.unit_rpy[row, 2] + offset[0])), max(float(offset_sigma[0]), np.radians(0.1)),
                     "unit yaw + origin recovered from IACC and GNSS")
@@ -419,14 +419,14 @@ def _other_heading(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignmen
         m = inputs.mag[row:row + 50].mean(axis=0)
         C_level = euler_to_dcm(roll, pitch, 0.0)  # body -> heading-free level frame
         m_level = C_level @ m
-        heading = float(wrap_pi(-np.arctan2(m_level[1], m_level[0]) + np.radians(cfg.magnetic_declination)))
+        heading = float(wrap_pi(-np.arctan2(m_level[1], m_level[0]) + np.radians(cfg.ins.magnetic_declination)))
         return heading, np.radians(10.0), "magnetometer (declination from the configuration, sigma 10 deg)"
     if inputs.autopilot_yaw is not None:
         return float(inputs.autopilot_yaw[row]), np.radians(5.0), "autopilot yaw (sigma 5 deg)"
     return None, None, None
 
 
-def _initial_state(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignment, noise: NoiseModel,
+def _initial_state(inputs: InsInputs, cfg: InsSettings, alignment: Alignment, noise: NoiseModel,
                    calibrate: bool, lever: np.ndarray, latency: float) -> tuple[np.ndarray, np.ndarray]:
     """Nominal state (NS,) and covariance (nx, nx) at the alignment's start row."""
     nx = layout.NX_CAL if calibrate else layout.NX_NAV
@@ -444,7 +444,7 @@ def _initial_state(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignmen
     # datasheet and the alignment's own resolution allow, whichever is wider; no correlations.
     P0 = np.zeros((nx, nx))
     fit = np.diag(alignment.covariance) * 4.0
-    sigma_fix = np.asarray(cfg.gnss_sigma, dtype=float)
+    sigma_fix = np.asarray(cfg.gnss.sigma, dtype=float)
     sigma_g, sigma_a = _datasheet_bias_sigma(cfg)
     prior = np.concatenate([sigma_fix**2, (sigma_fix / np.sqrt(2.0)) ** 2 + START_SPEED_SIGMA**2,
                             np.radians([START_LEVEL_SIGMA_DEG, START_LEVEL_SIGMA_DEG, START_HEADING_SIGMA_DEG]) ** 2,
@@ -453,7 +453,7 @@ def _initial_state(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignmen
     if alignment.heading_prior_sigma is not None:
         # the heading from the unit's yaw and its origin recovered from IACC: information of its own
         P0[layout.ATT + 2, layout.ATT + 2] = alignment.heading_prior_sigma**2
-    level = np.radians(cfg.unit_level_sigma)
+    level = np.radians(cfg.unit.level_sigma)
     P0[layout.UNIT_LEVEL, layout.UNIT_LEVEL] = P0[layout.UNIT_LEVEL + 1, layout.UNIT_LEVEL + 1] = level**2
     P0[layout.UNIT_DRIFT, layout.UNIT_DRIFT] = (np.radians(2.0) / 60.0) ** 2
     if alignment.unit_drift is not None:
@@ -495,7 +495,7 @@ def _initial_state(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignmen
 
 
 # ---- one pass ------------------------------------------------------------------------------------------------
-def _run_pass(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignment, noise: NoiseModel, fixes: _Fixes,
+def _run_pass(inputs: InsInputs, cfg: InsSettings, alignment: Alignment, noise: NoiseModel, fixes: _Fixes,
               stride: int, gate: float, calibrate: bool, smooth: bool, want_stats: bool, lever: np.ndarray,
               latency: float, start_state: np.ndarray | None = None, rows_wanted: bool = True,
               restart_on_divergence: bool = True, nhc: bool = False) -> _Pass:
@@ -505,7 +505,7 @@ def _run_pass(inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignment, no
     kernel = load_kernel("ins")
     t = inputs.time
     n = len(t)
-    aiding = bool(cfg.unit_aiding and inputs.unit_rpy is not None)
+    aiding = bool(cfg.unit.aiding and inputs.unit_rpy is not None)
     unit_rpy = inputs.unit_rpy if inputs.unit_rpy is not None else np.zeros((n, 3))
     noise_vec = noise.as_array()
     nav = np.full((n, layout.NS), np.nan)
@@ -734,7 +734,7 @@ class _Estimation:
     and latency as states. Covariance epochs at ``ESTIMATION_RATE_HZ``; every pass starts from the previous one's
     smoothed state at the start row."""
 
-    def __init__(self, inputs: InsInputs, cfg: ProcessingConfig, alignment: Alignment, prior: NoiseModel,
+    def __init__(self, inputs: InsInputs, cfg: InsSettings, alignment: Alignment, prior: NoiseModel,
                  blocks: tuple[int, ...], lever: np.ndarray, latency: float, datasheet: NoiseModel | None = None):
         rate = 1.0 / float(np.median(np.diff(inputs.time)))
         factor = max(1, int(round(rate / ESTIMATION_IMU_RATE_HZ)))
@@ -749,7 +749,7 @@ class _Estimation:
         self.calibration: Calibration | None = None
         self.restarts = 0
         self.passes = 0
-        self.nhc = cfg.vehicle == "ground"
+        self.nhc = cfg.ins.vehicle == "ground"
         self.ground_test: dict[str, float] = {}
         self.datasheet = datasheet or prior
         #: the first pass gates only gross outliers (the GNSS variances are not fitted yet); every later one
@@ -852,7 +852,7 @@ class _Estimation:
         """The first pass from ``start`` (opened up until it holds; the ground-vehicle test once), then EM on
         the blocks the innovations identify. Returns the model and its last pass (None when it diverged)."""
         noise = start
-        test_ground = self.cfg.vehicle == "auto" and not self.ground_test
+        test_ground = self.cfg.ins.vehicle == "auto" and not self.ground_test
         run = self._smoothed(noise, rows=test_ground)
         for _ in range(INFLATE_TRIES):
             if not run.diverged:
@@ -867,11 +867,11 @@ class _Estimation:
             if self.ground_test["ground"]:
                 self.nhc = True
                 self.blocks = (*self.blocks, layout.B_NHC)
-        if self.gate != self.cfg.gate_chi2:
+        if self.gate != self.cfg.gnss_gate.chi2:
             # the GNSS variances from the first pass, then the final gate
             step, _ = em_step(noise, self.prior, run.stats, (layout.B_GNSS_H, layout.B_GNSS_V))
             noise = step
-            self.gate = self.cfg.gate_chi2
+            self.gate = self.cfg.gnss_gate.chi2
             run = self._smoothed(noise)
         elif test_ground and self.nhc:
             run = self._smoothed(noise)
@@ -919,7 +919,7 @@ class _Estimation:
             if kept is None or _moved(kept[0], given):
                 alignment, start_state = self.alignment, self.start_state
                 try:
-                    self.alignment = initial_alignment(self.inputs, self.cfg.updated(lever_arm_gnss=(0.0, 0.0, 0.0)))
+                    self.alignment = initial_alignment(self.inputs, self.cfg.with_lever_arm((0.0, 0.0, 0.0)))
                     self.start_state = None
                     other = self._calibration_from(noise, np.zeros(3))
                 except GeorefError:
@@ -984,8 +984,9 @@ def _partial_step(noise: NoiseModel, step: NoiseModel, blocks: tuple[int, ...], 
                               for b in blocks})
 
 
-def solve_ins(inputs: InsInputs, cfg: ProcessingConfig, smooth: bool = True) -> NavSolution:
-    """EKF (``smooth=False``) or EKF + RTS smoother solution at every IMU row (see the module docstring)."""
+def solve_ins(inputs: InsInputs, cfg: InsSettings, smooth: bool = True) -> NavSolution:
+    """EKF (``smooth=False``) or EKF + RTS smoother solution at every IMU row (see the module docstring), with the
+    sections of the configuration the filters read (``InsSettings.of(cfg)``)."""
     t = np.ascontiguousarray(inputs.time, dtype=float)
     if len(t) < 10 or np.any(np.diff(t) <= 0):
         raise GeorefError(f"{inputs.source}: IMU times must increase strictly")
@@ -1001,10 +1002,10 @@ def solve_ins(inputs: InsInputs, cfg: ProcessingConfig, smooth: bool = True) -> 
     lever = np.asarray(cfg.lever_arm_gnss, dtype=float)
     datasheet = noise_prior(cfg)
     prior = data_prior(datasheet, t, inputs.gyro, inputs.accel)
-    aiding = bool(cfg.unit_aiding and inputs.unit_rpy is not None)
+    aiding = bool(cfg.unit.aiding and inputs.unit_rpy is not None)
     blocks = tuple(b for b in range(layout.N_BLOCKS)
                    if (aiding or b not in UNIT_BLOCKS) and b not in (*NHC_BLOCKS, *WHITE_BLOCKS))
-    given_latency = cfg.gnss_latency
+    given_latency = cfg.gnss.latency
     estimation = _Estimation(inputs, cfg, alignment, prior, blocks, lever, given_latency or 0.0, datasheet)
     noise = estimation.run(starting_point(prior))
     calibration = estimation.calibration
@@ -1012,8 +1013,8 @@ def solve_ins(inputs: InsInputs, cfg: ProcessingConfig, smooth: bool = True) -> 
     # heading follows the track, and its sigma is then optimistic (a simulated car: -0.089 +- 0.026 s estimated,
     # no latency simulated; applying it made the position error 0.83 m instead of 0.34 m)
     latency = given_latency if given_latency is not None else 0.0
-    stride = max(1, int(round(rate / cfg.covariance_rate)))
-    final = _run_pass(inputs, cfg, alignment, noise, fixes, stride, cfg.gate_chi2, calibrate=False, smooth=smooth,
+    stride = max(1, int(round(rate / cfg.ins.covariance_rate)))
+    final = _run_pass(inputs, cfg, alignment, noise, fixes, stride, cfg.gnss_gate.chi2, calibrate=False, smooth=smooth,
                       want_stats=False, lever=lever, latency=latency, start_state=estimation.start_state,
                       nhc=estimation.nhc)
     valid, pos_var, vel_var, att_cov, angles, att_sigma, epoch_sigma = final.rows
@@ -1037,21 +1038,21 @@ def solve_ins(inputs: InsInputs, cfg: ProcessingConfig, smooth: bool = True) -> 
     diagnostics = InsDiagnostics(
         alignment=alignment, heading_source=alignment.heading_source, noise_prior=prior, noise=noise,
         em_ratios=estimation.ratios, restarts=final.restarts, calibration=calibration, lever_arm_given=lever,
-        latency_applied=latency, gate_chi2=cfg.gate_chi2, nis=full_nis, unit_aiding=aiding,
+        latency_applied=latency, gate_chi2=cfg.gnss_gate.chi2, nis=full_nis, unit_aiding=aiding,
         estimation_restarts=estimation.restarts,
         estimation_passes=estimation.passes, ground_vehicle=estimation.nhc, ground_test=estimation.ground_test,
         cross_validation=estimation.cv_scores,
         imu_gaps=[(float(t[a]), float(t[b])) for a, b in inputs.gaps])
-    info = {"vel_var_n": vel_var, "gyro_bias": states[:, layout.X_BG:layout.X_BG + 3],
-            "accel_bias": states[:, layout.X_BA:layout.X_BA + 3], "unit_yaw_origin": states[:, layout.X_UNIT_YAW],
-            "epoch_rows": final.ep_row, "epoch_sigma": epoch_sigma, "start_row": start_row,
-            "smoothed": smooth, "heading_source": alignment.heading_source, "unit_aiding": aiding}
+    info = InsInfo(vel_var_n=vel_var, gyro_bias=states[:, layout.X_BG:layout.X_BG + 3],
+                   accel_bias=states[:, layout.X_BA:layout.X_BA + 3], unit_yaw_origin=states[:, layout.X_UNIT_YAW],
+                   epoch_rows=final.ep_row, epoch_sigma=epoch_sigma, start_row=start_row,
+                   smoothed=smooth, heading_source=alignment.heading_source, unit_aiding=aiding)
     return NavSolution(
         method="rts" if smooth else "ekf", time=t, r_e=r_e, v_e=v_e, lat=lat, lon=lon, height=height,
         roll=angles[:, 0], pitch=angles[:, 1], yaw=angles[:, 2], pos_var_n=pos_var, att_sigma=att_sigma, valid=valid,
         gnss=GnssUse(time=gnss.time, status=full_status, innovation=full_innov, innovation_var=full_var,
                      line=gnss.line, nis=full_nis),
-        info=info, att_cov_n=att_cov, diagnostics=diagnostics, forward=forward_separation(t, final),
+        ins_info=info, att_cov_n=att_cov, diagnostics=diagnostics, forward=forward_separation(t, final),
     )
 
 
@@ -1068,10 +1069,10 @@ def inputs_from_pos(log: PosLog, use_unit_attitude: bool = True) -> InsInputs:
 
 
 def solve_rts(log: PosLog, cfg: ProcessingConfig) -> NavSolution:
-    """``--method rts``: EKF and RTS smoother on a POS log."""
-    return solve_ins(inputs_from_pos(log), cfg, smooth=True)
+    """``--method rts``: EKF and RTS smoother on a POS log, with the sections of ``cfg`` it reads."""
+    return solve_ins(inputs_from_pos(log), InsSettings.of(cfg), smooth=True)
 
 
 def solve_ekf(log: PosLog, cfg: ProcessingConfig) -> NavSolution:
-    """``--method ekf``: the forward EKF alone on a POS log."""
-    return solve_ins(inputs_from_pos(log), cfg, smooth=False)
+    """``--method ekf``: the forward EKF alone on a POS log, with the sections of ``cfg`` it reads."""
+    return solve_ins(inputs_from_pos(log), InsSettings.of(cfg), smooth=False)

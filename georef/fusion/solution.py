@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from georef.frames import C_e_n, C_n_e
+
+if TYPE_CHECKING:
+    from georef.fusion.yaw_offset import YawOffsetSolution
 
 
 @dataclass
@@ -70,6 +73,107 @@ class ForwardSeparation:
 
 
 @dataclass
+class InsInfo:
+    """What the full-state filters (``rts``, ``ekf``, and the EKF + RTS the graph starts from) leave beside the
+    trajectory, at the N IMU rows unless said otherwise:
+
+    * ``vel_var_n`` NED velocity variances [m^2/s^2] (N, 3);
+    * ``gyro_bias`` [rad/s] and ``accel_bias`` [m/s^2] (N, 3), the estimated sensor biases, body axes;
+    * ``unit_yaw_origin`` [rad] (N,): the POS unit's yaw origin ``d`` (true yaw = unit yaw + d);
+    * ``epoch_rows`` (E,): the rows of the covariance epochs, ``epoch_sigma`` (E, states): every state's 1-sigma
+      there, in the units of :mod:`georef.fusion.ins_layout`;
+    * ``start_row``: the first row the filter solved; ``smoothed``: an RTS pass ran; ``heading_source``: where the
+      initial heading came from; ``unit_aiding``: the unit's own roll/pitch/yaw aided the filter.
+    """
+
+    vel_var_n: np.ndarray
+    gyro_bias: np.ndarray
+    accel_bias: np.ndarray
+    unit_yaw_origin: np.ndarray
+    epoch_rows: np.ndarray
+    epoch_sigma: np.ndarray
+    start_row: int
+    smoothed: bool
+    heading_source: str
+    unit_aiding: bool
+
+
+@dataclass
+class AxisInfo:
+    """What the per-axis method leaves beside the trajectory: ``yaw_offset``, the POS unit's yaw offset and drift
+    recovered from GNSS (:class:`georef.fusion.yaw_offset.YawOffsetSolution`), and ``accel_sigma_n`` [m/s^2] (3,),
+    the white acceleration noise per sample the filters used, north, east, down."""
+
+    yaw_offset: YawOffsetSolution
+    accel_sigma_n: np.ndarray
+
+
+@dataclass
+class GraphCalibration:
+    """The factor graph's solution reduced to its calibration variable (GNSS lever arm x, y, z [m, body], GNSS time
+    offset [s]): the posterior ``mean`` (4,) and ``covariance`` (4, 4), and the prior it was given
+    (``prior_mean``, ``prior_covariance``); what a campaign combines across flights (:mod:`georef.campaign`)."""
+
+    mean: np.ndarray
+    covariance: np.ndarray
+    prior_mean: np.ndarray
+    prior_covariance: np.ndarray
+
+    def as_lists(self) -> dict[str, list]:
+        """The four arrays as nested lists under their names (JSON; read back by ``FlightReduction.from_dict``)."""
+        return {name: np.asarray(getattr(self, name), float).tolist()
+                for name in ("mean", "covariance", "prior_mean", "prior_covariance")}
+
+
+@dataclass
+class ScaleFactors:
+    """Scale-factor errors the graph estimated (``graph.graph_scale_factor_sigma`` > 0) [ppm, body x, y, z], with
+    their marginal 1-sigma, and the 1-sigma of their prior [ppm]: an axis whose sigma stays near it was not
+    observable in the flight's motion."""
+
+    accel_ppm: np.ndarray
+    accel_sigma_ppm: np.ndarray
+    gyro_ppm: np.ndarray
+    gyro_sigma_ppm: np.ndarray
+    prior_sigma_ppm: float
+
+
+@dataclass
+class GraphInfo:
+    """What the factor graph leaves beside the trajectory:
+
+    * ``lever_arm_m``, ``lever_arm_sigma_m`` (3,): the GNSS lever arm [m, body x forward, y right, z down]
+      estimated with the trajectory, and its marginal 1-sigma; ``time_offset_s``, ``time_offset_sigma_s`` the GNSS
+      time offset [s] (each fix measured that long before its tag) and its 1-sigma; ``calibration`` both as one
+      reduction with their prior;
+    * ``rejected_fixes`` of ``fixes``: the fixes the robust pass dropped, of those at keyframes;
+    * ``rts_separation_sigma`` (K,): the graph's horizontal position minus the RTS's it started from, in units of
+      the graph's own horizontal sigma, at each of the ``keyframes`` K; ``rts_attitude_separation_sigma`` (K,) the
+      same for the attitude, the largest axis;
+    * ``nhc_factors``: the ground-vehicle factors; ``error_final``: the graph's final error (half the weighted sum of
+      squared residuals);
+    * ``scale_factors``: the scale-factor errors when estimated, else None;
+    * ``noise_refit_lever_arm_m`` [m, body]: the lever arm the EKF + RTS were refitted with when the robust pass
+      found it elsewhere than configured, else None.
+    """
+
+    lever_arm_m: np.ndarray
+    lever_arm_sigma_m: np.ndarray
+    time_offset_s: float
+    time_offset_sigma_s: float
+    calibration: GraphCalibration
+    rejected_fixes: int
+    fixes: int
+    rts_separation_sigma: np.ndarray
+    rts_attitude_separation_sigma: np.ndarray
+    keyframes: int
+    nhc_factors: int
+    error_final: float
+    scale_factors: ScaleFactors | None = None
+    noise_refit_lever_arm_m: np.ndarray | None = None
+
+
+@dataclass
 class NavSolution:
     """IMU navigation at the POS rows, SI units.
 
@@ -94,7 +198,12 @@ class NavSolution:
     att_sigma: np.ndarray
     valid: np.ndarray
     gnss: GnssUse
-    info: dict = field(default_factory=dict)
+    #: the full-state filters' biases, velocity variances and epochs (``rts``, ``ekf``, ``graph``); else None
+    ins_info: InsInfo | None = None
+    #: the per-axis method's yaw offset and acceleration noise (``axis``); else None
+    axis_info: AxisInfo | None = None
+    #: the factor graph's calibration and separations (``graph``); else None
+    graph_info: GraphInfo | None = None
     att_cov_n: np.ndarray | None = None
     #: how a full-state solution was reached (georef.fusion.ins.InsDiagnostics); None for other methods
     diagnostics: Any = None

@@ -109,7 +109,7 @@ def trajectory_table(nav: NavSolution) -> pd.DataFrame:
     """The fused trajectory at every IMU row with a solution: degrees, metres, m/s, 1-sigma."""
     v = nav.valid
     v_n = nav.v_n
-    vel_var = nav.info.get("vel_var_n", np.full((len(nav.time), 3), np.nan))
+    vel_var = nav.ins_info.vel_var_n if nav.ins_info is not None else np.full((len(nav.time), 3), np.nan)
     return pd.DataFrame({
         "time": nav.time[v], "lat": np.degrees(nav.lat[v]), "lon": np.degrees(nav.lon[v]), "height": nav.height[v],
         "vn": v_n[v, 0], "ve": v_n[v, 1], "vd": v_n[v, 2],

@@ -7,7 +7,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from georef.config import ProcessingConfig, config_to_toml
+from georef.config import (
+    GnssSection,
+    InsSection,
+    MountingSection,
+    OutputSection,
+    ProcessingConfig,
+    UnitSection,
+    config_to_toml,
+)
 from georef.frames import wrap_360
 from georef.io.atomic import atomic_write
 from georef.sim.flight import SimulatedFlight
@@ -29,12 +37,19 @@ def _rounded(pos: pd.DataFrame) -> pd.DataFrame:
 def processing_config_for(flight: SimulatedFlight, crs: str | None = None) -> ProcessingConfig:
     """The processing configuration that matches the simulated installation."""
     cfg = flight.config
-    unit = {} if cfg.unit is None else {
-        "unit_level_sigma": cfg.unit.level_error_deg, "unit_level_time": cfg.unit.level_error_corr_s,
-        "unit_angle_noise": cfg.unit.angle_noise_deg, "unit_drift_change": 0.01}
-    return ProcessingConfig(lever_arm_gnss=cfg.lever_arm_gnss_m, lever_arm_camera=cfg.lever_arm_camera_m,
-                            boresight=cfg.boresight_deg, gnss_sigma=cfg.gnss.sigma_neu_m,
-                            gnss_rate_hz=cfg.gnss.rate_hz, crs=crs, imu_preset=cfg.imu_preset, **unit)
+    unit = UnitSection() if cfg.unit is None else UnitSection(
+        level_sigma=cfg.unit.level_error_deg, level_time=cfg.unit.level_error_corr_s,
+        angle_noise=cfg.unit.angle_noise_deg, drift_change=0.01)
+    return ProcessingConfig(mounting=_mounting(flight), gnss=GnssSection(sigma=cfg.gnss.sigma_neu_m,
+                                                                         rate_hz=cfg.gnss.rate_hz),
+                            output=OutputSection(crs=crs), ins=InsSection(imu_preset=cfg.imu_preset), unit=unit)
+
+
+def _mounting(flight: SimulatedFlight) -> MountingSection:
+    """The simulated installation's lever arms [m, body] and boresight [deg]."""
+    cfg = flight.config
+    return MountingSection(lever_arm_gnss=cfg.lever_arm_gnss_m, lever_arm_camera=cfg.lever_arm_camera_m,
+                           boresight=cfg.boresight_deg)
 
 
 def installation_config(flight: SimulatedFlight, crs: str | None = None) -> ProcessingConfig:
@@ -42,8 +57,8 @@ def installation_config(flight: SimulatedFlight, crs: str | None = None) -> Proc
     output CRS. Everything else, the IMU's noise and biases, the GNSS sigmas, the unit's errors, stays at the
     defaults; the tests and benchmarks of the full-state filters run with this (no tuning to the simulator)."""
     cfg = flight.config
-    return ProcessingConfig(lever_arm_gnss=cfg.lever_arm_gnss_m, lever_arm_camera=cfg.lever_arm_camera_m,
-                            boresight=cfg.boresight_deg, gnss_rate_hz=cfg.gnss.rate_hz, crs=crs)
+    return ProcessingConfig(mounting=_mounting(flight), gnss=GnssSection(rate_hz=cfg.gnss.rate_hz),
+                            output=OutputSection(crs=crs))
 
 
 def write_flight(flight: SimulatedFlight, folder: Path | str, crs: str | None = None) -> dict[str, Path]:
