@@ -57,7 +57,7 @@ from georef.frames.rotations import (
     wrap_pi,
 )
 from georef.fusion.increments import compensated_rates
-from georef.fusion.ins import InsInputs, _gap_scale, inputs_from_pos, solve_ins, unit_drift_psd
+from georef.fusion.ins import InsInputs, _fix_sigmas, _gap_scale, inputs_from_pos, solve_ins, unit_drift_psd
 from georef.fusion.ins_layout import NHC_GATE, NHC_LEVER
 from georef.fusion.solution import GraphCalibration, GraphInfo, NavSolution, ScaleFactors
 
@@ -192,20 +192,21 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings, noise_lever: np.nd
     nhc_sigma = _add_ground_vehicle(gtsam, X, V, rts, gyro, key_rows, values, factors_at)
     # the calibration variables (the GNSS lever arm [m, body] and the GNSS time offset [s]: each fix was measured
     # that long before its time tag, the EKF's ``gnss_latency``) with their prior; GNSS antenna fixes with the
-    # sigmas the EKF + RTS fitted to this flight (the configured ones scaled by the fitted variance factors)
-    sigma = np.asarray(cfg.gnss.sigma) * np.sqrt([noise.r_scale_h, noise.r_scale_h, noise.r_scale_v])
-    fixes = _fixes_at_keyframes(gnss, use, t, key_rows, to_plane)
+    # sigmas the EKF + RTS fitted to this flight: each fix's own (gnss.csv sigma_n/e/u) or the configured ones,
+    # scaled by the fitted variance factors
+    sigma = _fix_sigmas(gnss, cfg) * np.sqrt([noise.r_scale_h, noise.r_scale_h, noise.r_scale_v])
+    fixes = _fixes_at_keyframes(gnss, use, t, key_rows, to_plane, sigma)
     calibration = rts.diagnostics.calibration
     lever_start = np.asarray(calibration.lever_arm if calibration is not None else prior_mean[:3], float)
     start = gtsam.Values(values)
     if cfg.graph.robust:
         # robust pass: a Cauchy kernel on every fix, the lever arm a variable, the time offset held at its prior
         # mean; the fixes it leaves as outliers are then dropped and the graph refitted with Gaussian factors
-        kernel = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(CAUCHY_K),
-                                                gtsam.noiseModel.Diagonal.Sigmas(sigma))
+        cauchy = gtsam.noiseModel.mEstimator.Cauchy.Create(CAUCHY_K)
         robust_factors = {k: [gtsam.GPSFactorArmCalib(X(k), LEVER, z + v_t[key_rows[k]] * (prior_mean[3] - lag),
-                                                      kernel)]
-                          for k, z, lag in zip(fixes.key, fixes.z, fixes.lag, strict=True)}
+                                                      gtsam.noiseModel.Robust.Create(
+                                                          cauchy, gtsam.noiseModel.Diagonal.Sigmas(fix_sigma)))]
+                          for k, z, lag, fix_sigma in zip(fixes.key, fixes.z, fixes.lag, fixes.sigma, strict=True)}
         robust_factors[0] = robust_factors.get(0, []) + [gtsam.PriorFactorPoint3(
             LEVER, prior_mean[:3], gtsam.noiseModel.Gaussian.Covariance(prior_cov[:3, :3]))]
         robust_start = gtsam.Values(values)
@@ -219,13 +220,14 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings, noise_lever: np.nd
             nav.diagnostics.calibration = rts.diagnostics.calibration
             nav.diagnostics.lever_arm_given = rts.diagnostics.lever_arm_given
             return nav
-    inlier = _inliers(start, fixes, lever_start, prior_mean[3], sigma, cfg.gnss_gate.chi2) if cfg.graph.robust else \
+    inlier = _inliers(start, fixes, lever_start, prior_mean[3], cfg.gnss_gate.chi2) if cfg.graph.robust else \
         np.ones(len(fixes.key), bool)
     start.insert(CALIBRATION, np.concatenate([lever_start, prior_mean[3:]]))
     gnss_factors: dict[int, list] = {0: [gtsam.PriorFactorVector(CALIBRATION, prior_mean,
                                                                  gtsam.noiseModel.Gaussian.Covariance(prior_cov))]}
-    for k, z, lag in zip(fixes.key[inlier], fixes.z[inlier], fixes.lag[inlier], strict=True):
-        gnss_factors.setdefault(k, []).append(_gnss_factor(gtsam, X(k), V(k), z, lag, sigma, start))
+    for k, z, lag, fix_sigma in zip(fixes.key[inlier], fixes.z[inlier], fixes.lag[inlier], fixes.sigma[inlier],
+                                    strict=True):
+        gnss_factors.setdefault(k, []).append(_gnss_factor(gtsam, X(k), V(k), z, lag, fix_sigma, start))
     result = _optimise(gtsam, cfg, factors_at, gnss_factors, start, len(key_rows))
     graph = gtsam.NonlinearFactorGraph()
     for k in range(len(key_rows)):
@@ -365,18 +367,21 @@ def calibration_prior(cfg: GraphSettings, prior: CalibrationPrior | None = None)
 
 @dataclass(frozen=True)
 class _Fixes:
-    """GNSS fixes used by the graph: the keyframe of each (``key``), its antenna position in the plane ``z`` [m]
-    and ``lag`` = fix time - keyframe row time [s] (at most one IMU interval, negative)."""
+    """GNSS fixes used by the graph: the keyframe of each (``key``), its antenna position in the plane ``z`` [m],
+    ``lag`` = fix time - keyframe row time [s] (at most one IMU interval, negative) and its white-noise ``sigma``
+    (north, east, vertical [m]; applied on the plane's axes, which the flight's NED tilts by at most its extent
+    over the Earth's radius)."""
 
     key: np.ndarray
     z: np.ndarray
     lag: np.ndarray
+    sigma: np.ndarray
 
 
 def _fixes_at_keyframes(gnss: GnssEpochs, use: np.ndarray, t: np.ndarray, key_rows: np.ndarray,
-                        to_plane: Callable[[np.ndarray], np.ndarray]) -> _Fixes:
+                        to_plane: Callable[[np.ndarray], np.ndarray], sigma: np.ndarray) -> _Fixes:
     """The fixes ``use`` (indices into ``gnss``) at their keyframes (the first IMU row at or after each), one per
-    keyframe."""
+    keyframe, with their rows of ``sigma`` (one per fix of ``gnss``, north, east, vertical [m])."""
     rows = np.searchsorted(t, gnss.time[use], side="left")
     k = np.searchsorted(key_rows, rows)
     at_key = (k < len(key_rows)) & (key_rows[np.minimum(k, len(key_rows) - 1)] == rows)
@@ -384,7 +389,7 @@ def _fixes_at_keyframes(gnss: GnssEpochs, use: np.ndarray, t: np.ndarray, key_ro
     k, first = np.unique(k, return_index=True)
     use, rows = use[first], rows[first]
     r_ant = geodetic_to_ecef(np.radians(gnss.lat_deg[use]), np.radians(gnss.lon_deg[use]), gnss.height[use])
-    return _Fixes(key=k, z=to_plane(r_ant), lag=gnss.time[use] - t[rows])
+    return _Fixes(key=k, z=to_plane(r_ant), lag=gnss.time[use] - t[rows], sigma=sigma[use])
 
 
 def _antenna_residual(pose: gtsam.Pose3, velocity: np.ndarray, calibration: np.ndarray, z: np.ndarray,
@@ -428,8 +433,7 @@ def _kept_linear(gtsam: ModuleType, linear: gtsam.JacobianFactor,
     return gtsam.LinearContainerFactor(linear, values)
 
 
-def _inliers(values: gtsam.Values, fixes: _Fixes, lever: np.ndarray, offset: float, sigma: np.ndarray,
-             threshold: float) -> np.ndarray:
+def _inliers(values: gtsam.Values, fixes: _Fixes, lever: np.ndarray, offset: float, threshold: float) -> np.ndarray:
     """Fixes whose whitened residual after the robust pass is within ``threshold`` (chi-square, 3 degrees of
     freedom; ``cfg.gnss_gate.chi2``, 99.9 % by default: one good fix in a thousand is lost). The residual is against
     the robust solution, which the fix itself pulled only weakly (the Cauchy kernel)."""
@@ -437,7 +441,7 @@ def _inliers(values: gtsam.Values, fixes: _Fixes, lever: np.ndarray, offset: flo
 
     calibration = np.concatenate([lever, [offset]])
     d2 = np.empty(len(fixes.key))
-    for i, (k, z, lag) in enumerate(zip(fixes.key, fixes.z, fixes.lag, strict=True)):
+    for i, (k, z, lag, sigma) in enumerate(zip(fixes.key, fixes.z, fixes.lag, fixes.sigma, strict=True)):
         residual, _ = _antenna_residual(values.atPose3(X(k)), values.atVector(V(k)), calibration, z, lag)
         d2[i] = np.sum((residual / sigma) ** 2)
     return d2 <= threshold
