@@ -42,6 +42,8 @@ from types import ModuleType, SimpleNamespace
 
 import numpy as np
 
+from georef import kernel_blas
+
 PACKAGE = "georef"
 PACKAGE_DIR = Path(__file__).resolve().parent
 #: the environment variable naming the directory builds are written to and loaded from (default PACKAGE_DIR)
@@ -421,6 +423,7 @@ def load(name: str) -> SimpleNamespace:
     LOADED[name] = "jit" if module is None else "aot"
     if module is None:
         module = importlib.import_module(spec.jit_module)
+    kernel_blas.register()  # BLAS and LAPACK without importing scipy.linalg (0.2 s per run)
     return SimpleNamespace(**{function: _guarded(getattr(module, function), interface)
                               for function, interface in spec.functions.items()})
 
