@@ -55,3 +55,20 @@ def test_kernels_use_scipys_blas_without_importing_scipy_linalg(monkeypatch, mod
     assert registered[1] == "False", "scipy.linalg was imported"
     assert normal[1] == "True"
     assert registered[3] == "True", "scipy.linalg does not work after the registration"
+
+
+def test_registration_falls_back_to_the_normal_import_when_the_layout_differs():
+    """A scipy whose extension files are not where register() looks (here: no file has an extension suffix it
+    tries, for the whole run): it registers nothing and says so, and the kernels then find BLAS and LAPACK
+    through the normal import of scipy.linalg, with the same results."""
+    script = ("import importlib.machinery, sys\n"
+              "importlib.machinery.EXTENSION_SUFFIXES[:] = ['.no-such-suffix']\n"
+              "from georef import kernel_blas\n"
+              "print(kernel_blas.register(), any(m in sys.modules for m in kernel_blas.MODULES))\n")
+    run = subprocess.run([sys.executable, "-c", script + SCRIPT.format(import_first=False)], capture_output=True,
+                         text=True, timeout=300, check=False)
+    assert run.returncode == 0, run.stderr
+    refused, loaded, digest, imported, *_ = run.stdout.split()
+    assert (refused, loaded) == ("False", "False")
+    assert digest == _run(import_first=True)[0], "the fallback's results differ from those of the normal lookup"
+    assert imported == "True", "the fallback did not go through scipy.linalg"
