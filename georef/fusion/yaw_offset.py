@@ -141,14 +141,6 @@ def _double_integral(values: np.ndarray, imu_time: np.ndarray, at: np.ndarray) -
     return interp[0].reshape(shape), interp[1].reshape(shape)
 
 
-def _window_solve(r_n: np.ndarray, tau: np.ndarray, A: np.ndarray, B: np.ndarray,
-                  sig: np.ndarray) -> tuple[float, float]:
-    """Yaw offset [rad] and its sigma [rad] for one window (see the module docstring; the steps are compiled in
-    :func:`georef.fusion.yaw_offset_kernel.window_solve`)."""
-    d, sigma = load_kernel("yaw").window_solve(r_n, tau, A, B, sig, HUBER_K)
-    return float(wrap_pi(d)), float(sigma)
-
-
 def window_offsets(
     gnss_time: np.ndarray, gnss_lat_deg: np.ndarray, gnss_lon_deg: np.ndarray, gnss_height: np.ndarray,
     imu_time: np.ndarray, iacc_u: np.ndarray, unit_rpy: np.ndarray, lever_arm_gnss: np.ndarray,
@@ -172,6 +164,7 @@ def window_offsets(
     rate = 1.0 / np.median(np.diff(gnss_time)) if len(gnss_time) > 1 else 1.0
     out: dict[str, list] = {k: [] for k in ("time", "offset", "sigma", "accepted")}
     sig = np.asarray(sigma_ne, dtype=float)
+    solve = load_kernel("yaw").window_solve  # once: a load hashes the kernel's inputs
     for centre in centres:
         sel = np.flatnonzero(inside & (np.abs(gnss_time - centre) <= window / 2))
         n = len(sel)
@@ -184,7 +177,9 @@ def window_offsets(
         # double integrals from the window centre (their affine parts are absorbed by p0, v0)
         A = A_pos[sel] - A_pos[mid] - A_vel[mid] * tau[:, None] + L_at[sel] - L_at[mid]
         B = B_pos[sel] - B_pos[mid] - B_vel[mid] * tau[:, None, None]
-        offset, sigma = _window_solve(r_n, tau, A, B, sig)
+        # the window's solve (module docstring), compiled: georef.fusion.yaw_offset_kernel.window_solve
+        d, sigma = solve(r_n, tau, A, B, sig, HUBER_K)
+        offset = float(wrap_pi(d))
         out["time"].append(gnss_time[mid])
         out["offset"].append(offset)
         out["sigma"].append(sigma)
