@@ -42,6 +42,8 @@ from types import ModuleType, SimpleNamespace
 
 import numpy as np
 
+from georef import kernel_blas
+
 PACKAGE = "georef"
 PACKAGE_DIR = Path(__file__).resolve().parent
 #: the environment variable naming the directory builds are written to and loaded from (default PACKAGE_DIR)
@@ -112,6 +114,9 @@ KERNELS: dict[str, KernelSpec] = {
         {"preintegrate": KernelFunction(
             args=(F1, F2, F2, INT, F1, F1, F1, F1),
             returns=(F3, F2, F2, F2, F2, F3, F3, F3, F3, F3, F3))}),
+    "yaw": KernelSpec(
+        "georef.fusion.yaw_offset_kernel",
+        {"window_solve": KernelFunction(args=(F2, F1, F2, F3, F1, FLOAT), returns=(F1,))}),
     "axis": KernelSpec(
         "georef.fusion.axis_kernel",
         {"axis_filter": KernelFunction(args=(F1, F2, F1, F2, F2, F1, F1, F1, FLOAT, INT),
@@ -421,6 +426,7 @@ def load(name: str) -> SimpleNamespace:
     LOADED[name] = "jit" if module is None else "aot"
     if module is None:
         module = importlib.import_module(spec.jit_module)
+    kernel_blas.register()  # BLAS and LAPACK without importing scipy.linalg (0.2 s per run)
     return SimpleNamespace(**{function: _guarded(getattr(module, function), interface)
                               for function, interface in spec.functions.items()})
 

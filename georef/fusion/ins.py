@@ -626,17 +626,12 @@ def _run_pass(inputs: InsInputs, cfg: InsSettings, alignment: Alignment, noise: 
             x0 = x_prev
             P0 = np.diag(np.diag(P0)) * 100.0
             max_rejects = 0
-    ep_row = np.concatenate([e[0] for e in epochs])
-    ep_dT = np.concatenate([e[1] for e in epochs])
-    ep_Pm = np.concatenate([e[2] for e in epochs])
-    ep_Pp = np.concatenate([e[3] for e in epochs])
-    ep_Phi = np.concatenate([e[4] for e in epochs])
-    ep_dx = np.concatenate([e[5] for e in epochs])
-    loglik = np.concatenate([e[6] for e in epochs]).sum(axis=0)
+    ep_row, ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, loglik = (_joined([e[i] for e in epochs]) for i in range(7))
+    loglik = loglik.sum(axis=0)
     seg_start = np.zeros(len(ep_row), dtype=bool)
     starts = np.cumsum([0, *[len(e[0]) for e in epochs[:-1]]])
     seg_start[starts[[e[7] for e in epochs]]] = True
-    aux = [np.concatenate([a[i] for a in auxes]) for i in range(6)]
+    aux = [_joined([a[i] for a in auxes]) for i in range(6)]
     stats = None
     rows = None
     first_state = last_state = None
@@ -658,6 +653,12 @@ def _run_pass(inputs: InsInputs, cfg: InsSettings, alignment: Alignment, noise: 
                  fix_z=fix_z, fix_S=fix_S, fix_d2=fix_d2, stats=stats if want_stats else None, restarts=restarts,
                  rows=rows, loglik=loglik, first_state=first_state, last_state=last_state, diverged=diverged,
                  forward=forward)
+
+
+def _joined(parts: list[np.ndarray]) -> np.ndarray:
+    """The segments' arrays end to end; a single segment's array as it is (the usual run: no copy of its three
+    (E, nx, nx) covariance histories, 15 MB a pass on a 15-minute flight)."""
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
 def forward_separation(t: np.ndarray, run: _Pass) -> ForwardSeparation | None:

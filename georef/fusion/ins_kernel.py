@@ -114,7 +114,13 @@ from georef.fusion.ins_layout import (  # noqa: F401  (the kernel's public names
     X_UNIT_YAW,
     X_VEL,
 )
-from georef.fusion.strapdown import increments, mechanise, two_sample_corrections  # noqa: F401  (exported)
+from georef.fusion.strapdown import (  # noqa: F401  (exported)
+    MECHANISE_WORK,
+    increments,
+    mechanise,
+    mechanise_into,
+    two_sample_corrections,
+)
 
 
 @njit(cache=True)
@@ -503,6 +509,7 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
     # P and the buffer the next step writes into (swapped after each step), scratch for the products
     P_next = np.empty((nx, nx))
     work = np.empty((6, nx, nx))
+    mech_work = np.empty((MECHANISE_WORK, 4))  # the strapdown's scratch, reused at every row
     for k in range(start_row + 1, n):
         dt = t[k] - t[k - 1]
         if dt > max_gap:
@@ -527,7 +534,7 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
             dtheta_prev[:] = dtheta
             dvel_prev[:] = dvel
         C_start[:, :] = C
-        mechanise(x, dtheta, dvel, dtheta_prev, dvel_prev, dt, C)
+        mechanise_into(x, dtheta, dvel, dtheta_prev, dvel_prev, dt, C, mech_work)
         dtheta_prev[:] = dtheta
         dvel_prev[:] = dvel
         # the unit's nominal attitude errors
