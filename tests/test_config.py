@@ -184,3 +184,22 @@ def test_a_calibration_prior_is_refused_by_the_methods_without_one(tmp_path):
     prior = ([0.4, 0.1, -1.6, 0.0], [[0.01, 0, 0, 0], [0, 0.01, 0, 0], [0, 0, 0.01, 0], [0, 0, 0, 1e-6]])
     with pytest.raises(ValueError, match="needs method 'graph'"):
         process(tmp_path / "POS.txt", tmp_path / "Kamera.txt", ProcessingConfig(), calibration_prior=prior)
+
+
+def test_solvers_narrow_a_whole_configuration_to_their_sections(flight_dir, flight_defaults):
+    """A library user may hand a solver the whole ``ProcessingConfig``: it is narrowed to the solver's settings at
+    the boundary, and the solution is the one the settings give (no AttributeError from deep inside)."""
+    import numpy as np
+
+    from georef.config import AxisSettings, InsSettings
+    from georef.fusion.axis import solve_axis
+    from georef.fusion.ins import inputs_from_pos, solve_ins
+    from georef.io.pos import read_pos
+
+    log = read_pos(flight_dir[1]["POS.txt"])
+    whole = solve_ins(inputs_from_pos(log), flight_defaults, smooth=False)
+    narrowed = solve_ins(inputs_from_pos(log), InsSettings.of(flight_defaults), smooth=False)
+    np.testing.assert_array_equal(whole.r_e, narrowed.r_e)
+    np.testing.assert_array_equal(whole.att_sigma, narrowed.att_sigma)
+    np.testing.assert_array_equal(solve_axis(log, flight_defaults).r_e,
+                                  solve_axis(log, AxisSettings.of(flight_defaults)).r_e)

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from georef.config import AxisSettings
+from georef.config import AxisSettings, ProcessingConfig
 from georef.frames import C_e_n, C_n_e, ecef_to_geodetic, euler_to_dcm, geodetic_to_ecef, wrap_pi
 from georef.frames.mounting import lever_arm_ecef
 from georef.frames.rotations import attitude_at
@@ -32,9 +32,11 @@ REQUIRED_ROLES = ("iacc_x", "iacc_y", "iacc_z", "roll", "pitch", "yaw")
 MAX_CONSECUTIVE_REJECTS = 5
 
 
-def solve_axis(log: PosLog, cfg: AxisSettings) -> NavSolution:
+def solve_axis(log: PosLog, cfg: AxisSettings | ProcessingConfig) -> NavSolution:
     """Per-axis GPS/INS solution at the POS rows (see the module docstring), with the sections of the
-    configuration the method reads (``AxisSettings.of(cfg)``)."""
+    configuration the method reads (``AxisSettings.of(cfg)``; a whole configuration is narrowed to them here)."""
+    if isinstance(cfg, ProcessingConfig):
+        cfg = AxisSettings.of(cfg)
     gnss = log.gnss
     t = log.time
     iacc_u = log.vector("iacc")

@@ -92,7 +92,7 @@ def solve_graph(log: PosLog, cfg: ProcessingConfig, prior: CalibrationPrior | No
     return solve_graph_inputs(inputs_from_pos(log), GraphSettings.of(cfg), prior=prior)
 
 
-def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings, noise_lever: np.ndarray | None = None,
+def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings | ProcessingConfig, noise_lever: np.ndarray | None = None,
                        prior: CalibrationPrior | None = None) -> NavSolution:
     """Graph smoother on INS inputs (a POS log's or ``georef fuse``'s imu.csv and gnss.csv). Returns a
     :class:`NavSolution` at every IMU row that the EKF + RTS solves: ECEF position [m] and velocity [m/s], geodetic
@@ -100,7 +100,10 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings, noise_lever: np.nd
     attitude-error covariance [rad^2] and Euler sigmas [rad]. ``noise_lever`` [m, body]: the GNSS lever arm the
     EKF + RTS apply instead of the configured one (set by the run itself when its robust pass finds the lever arm
     elsewhere, :func:`_noise_refit`); the graph's own lever-arm prior stays the configured one. ``prior``: a
-    campaign's prior on the calibration variable replacing the configured one (:func:`calibration_prior`)."""
+    campaign's prior on the calibration variable replacing the configured one (:func:`calibration_prior`). A whole
+    configuration is narrowed to ``GraphSettings.of(cfg)`` here."""
+    if isinstance(cfg, ProcessingConfig):
+        cfg = GraphSettings.of(cfg)
     import gtsam
     from gtsam.symbol_shorthand import B, U, V, X
 

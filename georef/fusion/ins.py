@@ -985,9 +985,12 @@ def _partial_step(noise: NoiseModel, step: NoiseModel, blocks: tuple[int, ...], 
                               for b in blocks})
 
 
-def solve_ins(inputs: InsInputs, cfg: InsSettings, smooth: bool = True) -> NavSolution:
+def solve_ins(inputs: InsInputs, cfg: InsSettings | ProcessingConfig, smooth: bool = True) -> NavSolution:
     """EKF (``smooth=False``) or EKF + RTS smoother solution at every IMU row (see the module docstring), with the
-    sections of the configuration the filters read (``InsSettings.of(cfg)``)."""
+    sections of the configuration the filters read (``InsSettings.of(cfg)``; a whole configuration is narrowed to
+    them here)."""
+    if isinstance(cfg, ProcessingConfig):
+        cfg = InsSettings.of(cfg)
     t = np.ascontiguousarray(inputs.time, dtype=float)
     if len(t) < 10 or np.any(np.diff(t) <= 0):
         raise GeorefError(f"{inputs.source}: IMU times must increase strictly")
