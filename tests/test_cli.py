@@ -197,6 +197,17 @@ def test_bad_vehicle_is_a_user_error(tmp_path):
     assert not (tmp_path / "eo.csv").exists()
 
 
+def test_a_refused_option_value_names_the_option(tmp_path):
+    """A value the configuration refuses, given on the command line, is reported against the option (not the
+    flight.toml key the user never typed), exit 2, nothing written."""
+    result = RUNNER.invoke(app, ["process", str(DATA / "POS.txt"), str(DATA / "Kamera.txt"), "-o",
+                                 str(tmp_path / "eo.csv"), "--gnss-sigma", "1,0,2"])
+    assert result.exit_code == 2
+    assert "--gnss-sigma: must be positive metres, got (1.0, 0.0, 2.0)" in result.output
+    assert "gnss.gnss_sigma" not in result.output
+    assert not (tmp_path / "eo.csv").exists()
+
+
 def test_user_text_is_printed_as_is(tmp_path):
     folder = tmp_path / "flight[red]"
     folder.mkdir()

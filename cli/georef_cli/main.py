@@ -26,7 +26,7 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from georef.config import GraphSettings, InsSettings, load_configs
+from georef.config import ConfigValueError, GraphSettings, InsSettings, ProcessingConfig, load_configs
 from georef.io.errors import GeorefError
 
 from .coercion import PlainCoercionCommand, PlainCoercionGroup
@@ -115,6 +115,19 @@ def _triple(text: str | None, what: str, unit: str) -> tuple[float, float, float
         raise typer.BadParameter(f"{what} needs three comma-separated numbers in {unit}, e.g. 0.5,0,-1.2; "
                                  f"got {text!r}")
     return values  # type: ignore[return-value]
+
+
+def _with_options(cfg: ProcessingConfig, **options: tuple[str, Any]) -> ProcessingConfig:
+    """``cfg`` with the command-line options given (``flight.toml key=(option, value)``; ``None`` values are not
+    given) applied over it; a value its section refuses is reported against the option that gave it."""
+    try:
+        return cfg.updated(**{key: value for key, (_, value) in options.items()})
+    except ConfigValueError as exc:
+        key = exc.key.rsplit(".", 1)[-1]
+        option, value = options.get(key, (None, None))
+        if option is None or value is None:
+            raise
+        raise typer.BadParameter(f"{option}: {str(exc).removeprefix(exc.key + ' ')}") from None
 
 
 def _user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -238,14 +251,17 @@ def process(
     _one_stdout(**{"-o": output, "--summary-json": summary_json})
     _not_stdout(report, "--report", "the report is written atomically as a file")
     cfg = load_configs(config)
-    cfg = cfg.updated(
-        method=plain(method), lever_arm_gnss=_triple(gnss_lever_arm, "--gnss-lever-arm", "metres"),
-        lever_arm_camera=_triple(camera_lever_arm, "--camera-lever-arm", "metres"),
-        boresight=_triple(boresight, "--boresight", "degrees"),
-        gnss_sigma=_triple(gnss_sigma, "--gnss-sigma", "metres"), gnss_rate_hz=gnss_rate,
-        camera_utc_offset=camera_utc_offset, crs=crs, attitude_source=attitude_source,
-        camera_time_offset=camera_time_offset, gnss_latency=gnss_latency, vehicle=plain(vehicle),
-        height=height, image_names=image_names,
+    cfg = _with_options(
+        cfg, method=("--method", plain(method)),
+        lever_arm_gnss=("--gnss-lever-arm", _triple(gnss_lever_arm, "--gnss-lever-arm", "metres")),
+        lever_arm_camera=("--camera-lever-arm", _triple(camera_lever_arm, "--camera-lever-arm", "metres")),
+        boresight=("--boresight", _triple(boresight, "--boresight", "degrees")),
+        gnss_sigma=("--gnss-sigma", _triple(gnss_sigma, "--gnss-sigma", "metres")),
+        gnss_rate_hz=("--gnss-rate", gnss_rate), camera_utc_offset=("--camera-utc-offset", camera_utc_offset),
+        crs=("--crs", crs), attitude_source=("--attitude-source", attitude_source),
+        camera_time_offset=("--camera-time-offset", camera_time_offset),
+        gnss_latency=("--gnss-latency", gnss_latency), vehicle=("--vehicle", plain(vehicle)),
+        height=("--height", height), image_names=("--image-names", image_names),
     )
     # every output, its format, the CRS, the geoid grid and the image names are checked before processing
     if output is None:
@@ -548,9 +564,11 @@ def fuse(
     method = plain(method)
     _one_stdout(**{"-o": output, "--summary-json": summary_json})
     cfg = load_configs(config)
-    cfg = cfg.updated(lever_arm_gnss=_triple(gnss_lever_arm, "--gnss-lever-arm", "metres"),
-                      gnss_sigma=_triple(gnss_sigma, "--gnss-sigma", "metres"), imu_preset=imu_preset,
-                      gnss_latency=gnss_latency, vehicle=plain(vehicle), magnetic_declination=magnetic_declination)
+    cfg = _with_options(
+        cfg, lever_arm_gnss=("--gnss-lever-arm", _triple(gnss_lever_arm, "--gnss-lever-arm", "metres")),
+        gnss_sigma=("--gnss-sigma", _triple(gnss_sigma, "--gnss-sigma", "metres")),
+        imu_preset=("--imu-preset", imu_preset), gnss_latency=("--gnss-latency", gnss_latency),
+        vehicle=("--vehicle", plain(vehicle)), magnetic_declination=("--magnetic-declination", magnetic_declination))
     progress, step = _stage_progress(quiet, total=3)
     with progress if progress is not None else contextlib.nullcontext():
         step("reading inputs")
