@@ -323,7 +323,7 @@ def check_graph_lever_arm(nav: NavSolution) -> Check | None:
     from georef.campaign import FlightReduction
     from georef.fusion.graph import LEVER_ARM_FREE_SIGMA
 
-    reduction = FlightReduction.from_dict(nav.graph_info.calibration.as_lists())
+    reduction = FlightReduction.from_dict(vars(nav.graph_info.calibration))
     own, own_sigma = reduction.own_estimate()
     prior, prior_sigma = reduction.prior_mean[:3], np.sqrt(np.diag(reduction.prior_covariance))[:3]
     applied, applied_sigma = reduction.mean[:3], np.sqrt(np.diag(reduction.covariance))[:3]
@@ -333,8 +333,8 @@ def check_graph_lever_arm(nav: NavSolution) -> Check | None:
                 for k in _lever_arm_differences(own, own_sigma, prior, prior_sigma, given)]
     graph_text = f"the graph applied {_lever_arm_text(applied, applied_sigma)} m (x, y, z)"
     if problems:
-        return Check("lever arm", FAIL, "; ".join(problems) + f"; {graph_text}, pulled towards the configuration by "
-                     "its prior, so the frames are wrong by up to the difference. " + LEVER_ADVICE)
+        return Check("lever arm", FAIL, "; ".join(problems) + f"; {graph_text}, held near the configuration by its "
+                     "prior, so the frames carry the configured lever arm's error. " + LEVER_ADVICE)
     if given.all():
         text = f"the GNSS lever arm the data show agrees with the configured one; {graph_text}"
     elif given.any():
