@@ -116,7 +116,8 @@ KERNELS: dict[str, KernelSpec] = {
             returns=(F3, F2, F2, F2, F2, F3, F3, F3, F3, F3, F3))}),
     "yaw": KernelSpec(
         "georef.fusion.yaw_offset_kernel",
-        {"window_solve": KernelFunction(args=(F2, F1, F2, F3, F1, FLOAT), returns=(F1,))}),
+        {"window_solve": KernelFunction(args=(F2, F1, F2, F3, F1, FLOAT), returns=(F1,)),
+         "huber_lstsq": KernelFunction(args=(F2, F1, FLOAT), returns=(F1, F2))}),
     "axis": KernelSpec(
         "georef.fusion.axis_kernel",
         {"axis_filter": KernelFunction(args=(F1, F2, F1, F2, F2, F1, F1, F1, FLOAT, INT),

@@ -86,3 +86,34 @@ def test_outlier_is_down_weighted():
     plain = least_squares(_model_residual, np.r_[np.zeros(8), 1.0], args=(r_n, tau, A, B), method="lm").x[8]
     assert abs(d - 1.0) < 4.0 * sigma
     assert abs(d - d_clean) < abs(plain - d_clean)
+
+
+def test_huber_lstsq_against_ordinary_and_robust_references():
+    """The compiled Huber fit (the windows' linear start and the flight's offset and drift fit): on clean
+    unit-variance data it is ordinary least squares, with numpy's solution and covariance ``(AᵀA)⁻¹`` times the
+    a-posteriori variance factor when above 1; with gross outliers it lands where scipy's Huber loss puts the
+    minimum (six reweightings: to a hundredth of the clean fit's sigma) and far from ordinary least squares."""
+    rng = np.random.default_rng(5)
+    t = np.linspace(-60.0, 60.0, 41)
+    design = np.ascontiguousarray(np.stack([np.ones_like(t), t / 60.0], -1))
+    truth = np.array([0.3, -0.8])
+    clean = design @ truth + 0.5 * rng.standard_normal(len(t))   # noise below the stated 1: factor stays 1
+    solution, covariance = load("yaw").huber_lstsq(design, clean, HUBER_K)
+    ordinary, *_ = np.linalg.lstsq(design, clean, rcond=None)
+    residual = clean - design @ ordinary
+    assert np.all(np.abs(residual) <= HUBER_K)   # every weight stays 1
+    np.testing.assert_allclose(solution, ordinary, rtol=0, atol=1e-12)
+    factor = max(1.0, residual @ residual / (len(t) - 2))
+    np.testing.assert_allclose(covariance, np.linalg.inv(design.T @ design) * factor, rtol=1e-10, atol=1e-15)
+    noisy = design @ truth + 2.0 * rng.standard_normal(len(t))     # noisier than stated: the factor inflates
+    _, inflated = load("yaw").huber_lstsq(design, noisy, HUBER_K)
+    assert np.all(np.diag(inflated) > 1.5 * np.diag(np.linalg.inv(design.T @ design)))
+    outliers = clean.copy()
+    outliers[[3, 17, 30]] += [40.0, -25.0, 60.0]
+    robust, _ = load("yaw").huber_lstsq(design, outliers, HUBER_K)
+    reference = least_squares(lambda x: design @ x - outliers, np.zeros(2), loss="huber", f_scale=HUBER_K).x
+    sigma = np.sqrt(np.diag(np.linalg.inv(design.T @ design)))
+    assert np.all(np.abs(robust - reference) < 0.01 * sigma)
+    assert np.all(np.abs(robust - truth) < 3.0 * sigma)
+    ordinary_outliers, *_ = np.linalg.lstsq(design, outliers, rcond=None)
+    assert np.abs(ordinary_outliers - truth).max() > 5.0 * np.abs(robust - truth).max()

@@ -103,28 +103,6 @@ class YawOffsetSolution:
         return np.where(good, value, g_value), np.where(good, np.maximum(sigma, 0.0), g_sigma)
 
 
-def _huber_lstsq(design: np.ndarray, obs: np.ndarray, iterations: int = 6,
-                 residual_scaling: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Huber IRLS for unit-variance observations; returns solution, covariance and final weights.
-
-    With ``residual_scaling`` the covariance is inflated by the a-posteriori variance factor when it
-    exceeds 1 (observations noisier than their stated sigma).
-    """
-    weights = np.ones(len(obs))
-    solution = np.zeros(design.shape[1])
-    for _ in range(iterations):
-        sw = np.sqrt(weights)
-        solution, *_ = np.linalg.lstsq(design * sw[:, None], obs * sw, rcond=None)
-        residual = np.abs(obs - design @ solution)
-        weights = np.where(residual <= HUBER_K, 1.0, HUBER_K / np.maximum(residual, 1e-12))
-    normal = design.T @ (design * weights[:, None])
-    residual = obs - design @ solution
-    dof = max(1, len(obs) - design.shape[1])
-    variance_factor = max(1.0, float(weights @ residual**2) / dof) if residual_scaling else 1.0
-    covariance = np.linalg.pinv(normal) * variance_factor
-    return solution, covariance, weights
-
-
 def _cumulative_trapezoid(values: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Running trapezoid integral along axis 0, starting at 0 (scipy's ``cumulative_trapezoid(initial=0)``)."""
     steps = 0.5 * (values[1:] + values[:-1]) * np.diff(t)[:, None]
@@ -216,14 +194,15 @@ def recover_yaw_offset(
     t_ref = float(np.average(t_ok, weights=weights))
     dev = wrap_pi(windows.offset[ok] - reference)
     sigma_eff = windows.sigma[ok] * np.sqrt(overlap)
+    huber_lstsq = load_kernel("yaw").huber_lstsq  # Huber IRLS with the a-posteriori variance factor
     if ok.sum() >= 3 and np.ptp(t_ok) > 0:
         design = np.stack([np.ones(ok.sum()), t_ok - t_ref], -1) / sigma_eff[:, None]
-        solution, cov, _ = _huber_lstsq(design, dev / sigma_eff)
+        solution, cov = huber_lstsq(np.ascontiguousarray(design), dev / sigma_eff, HUBER_K)
         offset, drift = solution
         offset_sigma, drift_sigma = np.sqrt(np.diag(cov))
     else:
         design = np.ones((ok.sum(), 1)) / sigma_eff[:, None]
-        solution, cov, _ = _huber_lstsq(design, dev / sigma_eff)
+        solution, cov = huber_lstsq(np.ascontiguousarray(design), dev / sigma_eff, HUBER_K)
         offset, drift, offset_sigma, drift_sigma = solution[0], 0.0, float(np.sqrt(cov[0, 0])), 0.0
     return YawOffsetSolution(windows=windows, reference_time=t_ref, offset=float(wrap_pi(reference + offset)),
                              offset_sigma=float(offset_sigma), drift=float(drift), drift_sigma=float(drift_sigma),

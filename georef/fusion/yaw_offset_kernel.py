@@ -100,6 +100,28 @@ def _jacobian_and_residual(d: float, weights: np.ndarray, A: np.ndarray, B: np.n
 
 
 @njit(cache=True)
+def huber_lstsq(design: np.ndarray, obs: np.ndarray, huber_k: float) -> tuple[np.ndarray, np.ndarray]:
+    """Huber IRLS (six reweighted solves, threshold ``huber_k``) of ``design x = obs`` for unit-variance
+    observations: the solution and its covariance, inflated by the a-posteriori variance factor when that
+    exceeds 1 (observations noisier than their stated sigma). The window's linear start and the flight's offset
+    and drift fit both use it."""
+    m = design.shape[0]
+    weights = np.ones(m)
+    residual = np.empty(m)
+    solution = np.zeros(design.shape[1])
+    for _ in range(6):
+        solution = _lstsq_weighted(design, obs, weights)
+        fitted = design @ solution
+        for r in range(m):
+            residual[r] = abs(obs[r] - fitted[r])
+        _huber_weights(residual, huber_k, weights)
+    fitted = design @ solution
+    for r in range(m):
+        residual[r] = obs[r] - fitted[r]
+    return solution, _covariance(design, residual, weights)
+
+
+@njit(cache=True)
 def window_solve(r_n: np.ndarray, tau: np.ndarray, A: np.ndarray, B: np.ndarray, sig: np.ndarray,
                  huber_k: float) -> np.ndarray:
     """Yaw offset ``d`` [rad, not wrapped] and its 1-sigma [rad] of one window.
@@ -123,19 +145,9 @@ def window_solve(r_n: np.ndarray, tau: np.ndarray, A: np.ndarray, B: np.ndarray,
         start[k, 6], start[k, 7] = A[k, 0] / sig[0], -A[k, 1] / sig[0]
         start[n + k, 1], start[n + k, 3], start[n + k, 5] = 1.0 / sig[1], tau[k] / sig[1], half / sig[1]
         start[n + k, 6], start[n + k, 7] = A[k, 1] / sig[1], A[k, 0] / sig[1]
+    solution, cov = huber_lstsq(start, obs, huber_k)
     weights = np.ones(m)
     residual = np.empty(m)
-    solution = np.zeros(8)
-    for _ in range(6):
-        solution = _lstsq_weighted(start, obs, weights)
-        fitted = start @ solution
-        for r in range(m):
-            residual[r] = abs(obs[r] - fitted[r])
-        _huber_weights(residual, huber_k, weights)
-    fitted = start @ solution
-    for r in range(m):
-        residual[r] = obs[r] - fitted[r]
-    cov = _covariance(start, residual, weights)
     out = np.empty(2)
     d = math.atan2(solution[7], solution[6])
     norm2 = max(solution[6] ** 2 + solution[7] ** 2, 1e-12)
