@@ -26,7 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2
+from georef.distributions import chi2_sf
 
 #: a flight is consistent with the others unless its chi-square exceeds this tail probability (one false alarm in
 #: a thousand flights)
@@ -164,7 +164,7 @@ def _consistency(flight_data: tuple[np.ndarray, np.ndarray], total_info: np.ndar
     S = information + information @ other_cov @ information
     dof = int(np.linalg.matrix_rank(information, tol=RANK_TOLERANCE * max(np.max(np.abs(information)), 1e-300)))
     value = float(residual @ np.linalg.pinv(S, rcond=RANK_TOLERANCE, hermitian=True) @ residual)
-    return {"chi2": value, "dof": dof, "p_value": float(chi2.sf(value, dof)) if dof else 1.0}
+    return {"chi2": value, "dof": dof, "p_value": chi2_sf(value, dof) if dof else 1.0}
 
 
 def _own_estimate(information: np.ndarray, vector: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

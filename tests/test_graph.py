@@ -197,6 +197,31 @@ def test_fuse_accepts_the_graph(tmp_path):
     assert len(traj) > 0 and traj["lat"].notna().mean() > 0.9
 
 
+def test_graph_process_imports_no_more_than_rts_plus_gtsam(tmp_path):
+    """``georef process --method graph`` loads gtsam and nothing else that ``rts`` does not: the graph's lever-arm
+    check once pulled in scipy.stats through the campaign module (1.4 s of import, half the graph's own cost on a
+    15-minute flight)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    data = Path(__file__).resolve().parents[1] / "data"
+    code = ("import sys\nfrom georef_cli.main import app\ntry:\n"
+            f"    app(['process', {str(data / 'POS.txt')!r}, {str(data / 'Kamera.txt')!r}, '--config', "
+            f"{str(data / 'flight.toml')!r}, '-q', '-o', {str(tmp_path / 'eo.csv')!r}, '--method', sys.argv[1]])\n"
+            "except SystemExit as exc:\n    assert exc.code in (0, None, 4), exc.code\n"
+            "print(' '.join(sorted(m for m in sys.modules if not m.startswith('_'))))\n")
+    loaded = {}
+    for method in ("rts", "graph"):
+        run = subprocess.run([sys.executable, "-c", code, method], capture_output=True, text=True, timeout=120,
+                             check=False)
+        assert run.returncode == 0, run.stderr[-2000:]
+        loaded[method] = set(run.stdout.split())
+    extra = {name.split(".")[0] + ("." + name.split(".")[1] if "." in name else "")
+             for name in loaded["graph"] - loaded["rts"]}
+    assert "gtsam" in extra
+    assert {name for name in extra if not name.startswith("gtsam") and not name.startswith("georef.")} == set(), extra
+
 def test_graph_weighs_each_fix_by_its_own_sigma(tmp_path):
     """gnss.csv with its own sigma_n/e/u per fix: PPK fixes (2/2/4 cm) and, every other half minute, float fixes
     (0.5/0.5/1 m noise, their sigma columns saying so). The graph weighs each fix by its own sigma, as rts does:
