@@ -26,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+
 from georef.distributions import chi2_sf
 
 #: a flight is consistent with the others unless its chi-square exceeds this tail probability (one false alarm in
