@@ -394,6 +394,34 @@ def test_qr_marginals_equal_gtsams_cholesky_marginals(tmp_path):
         assert np.max(np.abs(a - b) / scale) < 1e-3, key
 
 
+def test_qr_marginals_fall_back_to_qr_where_the_default_elimination_fails():
+    """Where GTSAM's default (Cholesky) elimination of a clique's marginal throws, the marginal is taken with QR:
+    a chain of two 3-vectors, x0 ~ N(0, diag(1, 4, 9)) and x1 - x0 ~ N(0, I), whose covariances are known."""
+    import gtsam
+
+    from georef.fusion.graph import _QrMarginals
+
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(gtsam.PriorFactorVector(0, np.zeros(3), gtsam.noiseModel.Diagonal.Sigmas(np.array([1.0, 2.0, 3.0]))))
+    graph.add(gtsam.BetweenFactorVector(0, 1, np.zeros(3), gtsam.noiseModel.Unit.Create(3)))
+    values = gtsam.Values()
+    values.insert(0, np.zeros(3))
+    values.insert(1, np.zeros(3))
+    marginals = _QrMarginals(gtsam, graph, values)
+    tree, calls = marginals._tree, []
+
+    class FailingCholesky:
+        def marginalFactor(self, key, *eliminate):  # noqa: N802
+            calls.append(eliminate)
+            if not eliminate:
+                raise RuntimeError("Indeterminant linear system detected")
+            return tree.marginalFactor(key, *eliminate)
+
+    marginals._tree = FailingCholesky()
+    np.testing.assert_allclose(marginals.marginalCovariance(1), np.diag([2.0, 5.0, 10.0]), rtol=1e-12)
+    assert calls == [(), (gtsam.EliminateQR,)]
+
+
 def test_compensated_rates_make_gtsams_preintegration_exact_for_a_constant_rotation():
     """A body turning at a constant 0.5 rad/s about x, with a constant specific force: the exact velocity change
     over 1 s in the starting frame is ``∫ Exp(ω t) f dt`` (Rodrigues, integrated in closed form). GTSAM's
