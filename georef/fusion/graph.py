@@ -242,22 +242,13 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings | ProcessingConfig,
 
     # graph minus RTS at the keyframes, interpolated to every row
     n_keys = len(key_rows)
-    d_pos = np.empty((n_keys, 3))
-    d_vel = np.empty((n_keys, 3))
-    pos_var = np.empty((n_keys, 3))
-    att_cov = np.empty((n_keys, 3, 3))
-    R_keys = np.empty((n_keys, 3, 3))
-    for k, row in enumerate(key_rows):
-        pose = result.atPose3(X(k))
-        R = pose.rotation().matrix()
-        d_pos[k] = pose.translation() - p_t[row]
-        d_vel[k] = result.atVector(V(k)) - v_t[row]
-        R_keys[k] = R
-        cov = marginals.marginalCovariance(X(k))
-        C_t_n = C_n_t_rows[row].T
-        pos_cov_n = C_t_n @ R @ cov[3:, 3:] @ R.T @ C_t_n.T
-        pos_var[k] = np.diag(pos_cov_n)
-        att_cov[k] = C_t_n @ R @ cov[:3, :3] @ R.T @ C_t_n.T
+    R_keys, p_keys, v_keys = _keyframe_states(result, np.arange(n_keys))
+    d_pos = p_keys - p_t[key_rows]
+    d_vel = v_keys - v_t[key_rows]
+    cov = marginals.marginalCovariances([X(k) for k in range(n_keys)])  # (K, 6, 6), Pose3 tangent: body axes
+    C_b_n_keys = np.swapaxes(C_n_t_rows[key_rows], -1, -2) @ R_keys
+    pos_var = np.diagonal(C_b_n_keys @ cov[:, 3:, 3:] @ np.swapaxes(C_b_n_keys, -1, -2), axis1=1, axis2=2)
+    att_cov = C_b_n_keys @ cov[:, :3, :3] @ np.swapaxes(C_b_n_keys, -1, -2)
     d_rot = quat_to_rotvec(dcm_to_quat(R_keys @ np.swapaxes(C_b_t[key_rows], -1, -2)))  # plane-frame rotations
     rows = np.arange(len(t))
     interp = lambda data: np.stack([np.interp(rows, key_rows, data[:, j]) for j in range(data.shape[1])], -1)  # noqa: E731
@@ -330,11 +321,18 @@ class _QrMarginals:
         self._tree = linear.eliminateMultifrontal(gtsam.Ordering.ColamdGaussianFactorGraph(linear), gtsam.EliminateQR)
 
     def marginalCovariance(self, key: int) -> np.ndarray:  # noqa: N802 (gtsam.Marginals' name)
+        return np.linalg.inv(self._information(key))
+
+    def marginalCovariances(self, keys: list[int]) -> np.ndarray:  # noqa: N802
+        """The marginal covariances (K, d, d) of ``keys``, variables of one dimension d."""
+        return np.linalg.inv(np.array([self._information(key) for key in keys]))
+
+    def _information(self, key: int) -> np.ndarray:
         try:
             factor = self._tree.marginalFactor(key)
         except RuntimeError:  # GTSAM's IndeterminantLinearSystemException
             factor = self._tree.marginalFactor(key, self._gtsam.EliminateQR)
-        return np.linalg.inv(factor.information())
+        return factor.information()
 
 
 #: a campaign's prior on the calibration variable: (mean (4,), covariance (4, 4)), lever arm [m, body] and GNSS time
