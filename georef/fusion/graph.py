@@ -175,6 +175,8 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings | ProcessingConfig,
         values.insert(SCALE, np.zeros(6))
         factors_at[0].append(gtsam.PriorFactorVector(SCALE, np.zeros(6),
                                                      gtsam.noiseModel.Isotropic.Sigma(6, scale_sigma)))
+    # rows as Python objects once: indexing numpy per measurement cost more than GTSAM's integration itself
+    accel_rows, gyro_rows, dt_rows = list(accel_step), list(gyro_step), np.diff(t).tolist()
     for k in range(1, len(key_rows)):
         a, b = key_rows[k - 1], key_rows[k]
         # the EKF's process-noise factors over this interval (IMU gaps, GNSS outages), averaged over its rows: the
@@ -184,7 +186,7 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings | ProcessingConfig,
         step = params if scale[0] == 1.0 else _preintegration_params(gtsam, noise, gravity, omega, scale[0])
         pim = gtsam.PreintegratedImuMeasurements(step, values.atConstantBias(B(k - 1)))
         for r in range(a, b):
-            pim.integrateMeasurement(accel_step[r], gyro_step[r], t[r + 1] - t[r])
+            pim.integrateMeasurement(accel_rows[r], gyro_rows[r], dt_rows[r])
         rate_change = mean_rates[min(k, len(mean_rates) - 1)] - mean_rates[k - 1]
         factors_at.setdefault(k, []).extend([
             gtsam.ImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), pim),
