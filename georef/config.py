@@ -70,6 +70,11 @@ class _Section:
             if admitted is not None and (not isinstance(value, admitted) or (bool not in admitted
                                                                                and isinstance(value, bool))):
                 self._fail(f.name, f"must be {str(f.type).replace(' | None', ' or absent')}, got {value!r}")
+            # NaN passes every comparison check and froze the alignment's iterations (a NaN GNSS latency ran
+            # forever); infinity is no setting either
+            numbers = value if isinstance(value, (tuple, list)) else (value,)
+            if any(isinstance(v, float) and not np.isfinite(v) for v in numbers):
+                self._fail(f.name, f"must be finite, got {value!r}")
 
     def _triple(self, name: str, what: str) -> None:
         """Three numbers (``what``: their unit) stored as a tuple of floats."""
@@ -80,6 +85,8 @@ class _Section:
             triple = tuple(float(v) for v in value)
         except (TypeError, ValueError):
             self._fail(name, f"needs three numbers [{what}], got {value!r}")
+        if not all(np.isfinite(triple)):
+            self._fail(name, f"needs three finite numbers [{what}], got {value!r}")
         object.__setattr__(self, name, triple)
 
     def _choice(self, name: str, choices: tuple[str, ...]) -> None:

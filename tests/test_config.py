@@ -54,6 +54,13 @@ BAD_VALUES = [
     ("camera_columns", "frame_number", '"Frame"', "known: number, time, milliseconds"),
     ("imu", "gyro_arw_deg_rt_h", '"0.1"', "must be a number"),
     ("imu", "gyro_noise", "0.1", "unknown key"),
+    # NaN passes every comparison: a NaN latency once froze the alignment for good, a NaN lever arm reached LAPACK
+    ("gnss", "gnss_latency", "nan", "must be finite"),
+    ("gnss", "gnss_latency", "inf", "must be finite"),
+    ("mounting", "lever_arm_gnss", "[0.45, nan, -1.65]", "three finite numbers [m]"),
+    ("gnss", "gnss_sigma", "[1.0, 1.0, nan]", "finite"),
+    ("camera", "camera_time_offset", "-inf", "must be finite"),
+    ("ins", "magnetic_declination", "nan", "must be finite"),
 ]
 
 
