@@ -472,7 +472,11 @@ def _optimise(gtsam: ModuleType, cfg: GraphSettings, factors_at: dict[int, list]
         return gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams()).optimize()
     from gtsam.symbol_shorthand import B, U, V, X
 
-    isam = gtsam.ISAM2(gtsam.ISAM2Params())
+    params = gtsam.ISAM2Params()
+    # QR, as the marginals (_QrMarginals): with the scale-factor variable, the default Cholesky called the unit
+    # variables indeterminate on a 3-minute helicopter flight (exit 3)
+    params.setFactorization("QR")
+    isam = gtsam.ISAM2(params)
     for k in range(n_keys):
         new_graph = gtsam.NonlinearFactorGraph()
         for factor in factors_at.get(k, []) + extra.get(k, []):
