@@ -564,3 +564,29 @@ def test_batch_with_an_internal_error_exits_3(sim_flight, tmp_path, monkeypatch)
     assert document["exit_code"] == 3 and document["flights"][0]["failure"] == "internal"
     log = (tmp_path / "out" / "bug" / "georef.log").read_text()
     assert "FAILED (internal)" in log and "Traceback" in log and "ZeroDivisionError" in log
+
+
+def test_graph_summary_shows_its_calibration_and_the_campaign_table_its_units(tmp_path):
+    """``process --method graph`` prints the lever arm and time offset it estimated, with their sigmas, in its
+    summary (they were only in --summary-json and the report); the campaign table's title keeps its units (rich read
+    ``[m, body x y z]`` and ``[ms]`` as markup and dropped them)."""
+    from georef_cli import main
+
+    result = CliRunner().invoke(main.app, ["process", str(DATA / "POS.txt"), str(DATA / "Kamera.txt"), "--config",
+                                           str(DATA / "flight.toml"), "--method", "graph", "-o",
+                                           str(tmp_path / "eo.csv")])
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    axis = r"-?\d\.\d{3} ± 0\.\d{3}"
+    assert re.search(rf"GNSS lever arm │ {axis}, {axis}, {axis} m", text), text
+    assert re.search(r"GNSS time offset │ -?\d+\.\d{2} ± \d+\.\d{2} ms", text), text
+    calibration = {"rounds": 2, "gnss_lever_arm_m": [0.45, 0.15, -1.65], "gnss_lever_arm_sigma_m": [0.01] * 3,
+                   "gnss_time_offset_s": 0.001, "gnss_time_offset_sigma_s": 0.0005,
+                   "flights": {"f1": {"gnss_lever_arm_m": [0.45, 0.15, -1.65], "gnss_lever_arm_sigma_m": [0.02] * 3,
+                                      "gnss_time_offset_s": 0.001, "gnss_time_offset_sigma_s": 0.001, "chi2": 1.0,
+                                      "dof": 4, "consistent": True}}}
+    with main.out.capture() as captured:
+        main._print_campaign(calibration, None)
+    printed = " ".join(captured.get().split())
+    assert "lever arm [m, body x y z], GNSS time offset [ms]" in printed
+    assert "lever arm [m]" in printed and "time offset [ms]" in printed

@@ -355,6 +355,28 @@ def _filter_rows(s: dict[str, Any]) -> list[tuple[str, str]]:
                  f"m/s/√h, ARW {s['arw_deg_sqrt_h']:.3f} deg/√h"))
     if s.get("ground_vehicle"):
         rows.append(("ground vehicle", "non-holonomic constraints"))
+    rows.extend(_graph_rows(s))
+    return rows
+
+
+def _graph_rows(s: dict[str, Any]) -> list[tuple[str, str]]:
+    """Summary rows of ``--method graph``: the calibration it estimated with the trajectory (GNSS lever arm, time
+    offset, scale factors when on) with marginal sigmas, and the fixes its robust pass dropped."""
+    if s.get("graph_lever_arm_m") is None:
+        return []
+
+    def pm(values: Any, sigmas: Any, digits: int) -> str:
+        return ", ".join(f"{v:.{digits}f} ± {e:.{digits}f}" for v, e in zip(values, sigmas, strict=True))
+
+    rows = [("GNSS lever arm", pm(s["graph_lever_arm_m"], s["graph_lever_arm_sigma_m"], 3)
+             + " m (body x forward, y right, z down; estimated with the trajectory)"),
+            ("GNSS time offset", f"{s['graph_time_offset_s'] * 1e3:.2f} ± "
+             f"{s['graph_time_offset_sigma_s'] * 1e3:.2f} ms (each fix measured that long before its time tag)"),
+            ("robust pass", f"{s['graph_rejected_fixes']} fix(es) dropped as outliers")]
+    if s.get("graph_gyro_scale_ppm") is not None:
+        rows.append(("scale factors", f"gyro {pm(s['graph_gyro_scale_ppm'], s['graph_gyro_scale_sigma_ppm'], 0)} ppm; "
+                     f"accelerometer {pm(s['graph_accel_scale_ppm'], s['graph_accel_scale_sigma_ppm'], 0)} ppm "
+                     f"(prior σ {s['graph_scale_prior_sigma_ppm']:.0f} ppm)"))
     return rows
 
 
@@ -667,7 +689,7 @@ def batch(
         "--shared-calibration", help="With --method graph: estimate one GNSS lever arm [m, body] and time offset "
                                      "[s] from all flights (one installation), re-solve every flight with it, and "
                                      "flag flights that disagree (chi-square); writes calibration.json and "
-                                     "calibration.toml (feed it back with --config).")] = False,
+                                     "calibration.toml (give it to process or fuse as a second --config).")] = False,
     quiet: Quiet = False,
     summary_json: SummaryJson = None,
 ) -> None:
@@ -772,10 +794,10 @@ def _print_campaign(calibration: dict, summary_json: Path | None) -> None:
 
     from rich.table import Table
 
-    table = Table(title=f"campaign calibration ({calibration['rounds']} rounds): lever arm [m, body x y z], "
-                        "GNSS time offset [ms]", title_justify="left")
-    for column in ("flight", "lever arm", "time offset", "chi2 (dof)", "consistent"):
-        table.add_column(column)
+    table = Table(title=escape(f"campaign calibration ({calibration['rounds']} rounds): lever arm [m, body x y z], "
+                               "GNSS time offset [ms]"), title_justify="left")
+    for column in ("flight", "lever arm [m]", "time offset [ms]", "chi2 (dof)", "consistent"):
+        table.add_column(escape(column))
     table.add_row("campaign", fmt(calibration["gnss_lever_arm_m"], calibration["gnss_lever_arm_sigma_m"]),
                   fmt(calibration["gnss_time_offset_s"], calibration["gnss_time_offset_sigma_s"], 1e3, 1), "", "")
     for name, flight in calibration["flights"].items():
