@@ -29,6 +29,9 @@ import numpy as np
 
 from georef.distributions import chi2_sf
 
+#: below this share of the prior's variance removed by the data (:meth:`CampaignEstimate.data_share`), a component is
+#: reported as barely observed: its campaign value is mostly the configured prior
+WEAK_DATA_SHARE = 0.5
 #: a flight is consistent with the others unless its chi-square exceeds this tail probability (one false alarm in
 #: a thousand flights)
 CONSISTENCY_P = 1e-3
@@ -82,6 +85,17 @@ class CampaignEstimate:
     rounds: int = 0
     configured_priors: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
+    def data_share(self) -> np.ndarray:
+        """Per component (lever arm x, y, z, time offset) the share of the campaign estimate's variance that the
+        flights' data removed from the configured priors' (distinct priors combined): 1 - var / var_prior, in
+        [0, 1]. Near 0 the data did not observe the component and the campaign value is the prior handed back
+        (three 75-s simulated flights with 1-m fixes: 0.005-0.016)."""
+        variance = np.diag(self.covariance)
+        if not self.configured_priors:
+            return np.ones(4)
+        prior_variance = np.diag(_inverse(_distinct_priors(self.configured_priors)[0]))
+        return np.clip(1.0 - variance / prior_variance, 0.0, 1.0)
+
     def to_json(self) -> dict:
         """``calibration.json``: the campaign estimate with sigma and, per flight, its own estimate and verdict."""
         sigma = np.sqrt(np.diag(self.covariance))
@@ -89,6 +103,7 @@ class CampaignEstimate:
                 "gnss_lever_arm_sigma_m": [float(v) for v in sigma[:3]],
                 "gnss_time_offset_s": float(self.mean[3]), "gnss_time_offset_sigma_s": float(sigma[3]),
                 "covariance": [[float(v) for v in row] for row in self.covariance],
+                "data_share": [float(v) for v in self.data_share()],
                 "rounds": self.rounds, "consistency_p": CONSISTENCY_P,
                 "flights": {name: {key: (_plain(value)) for key, value in flight.items()}
                             for name, flight in self.flights.items()}}
@@ -99,7 +114,12 @@ class CampaignEstimate:
         sigma = np.sqrt(np.diag(self.covariance))
         numbers = ", ".join(f"{v:.4f}" for v in self.mean[:3])
         sigmas = ", ".join(f"{max(v, 1e-4):.4f}" for v in sigma[:3])
-        return ("# campaign calibration (georef batch --shared-calibration)\n"
+        share = self.data_share()
+        names = ("lever arm x", "lever arm y", "lever arm z", "time offset")
+        weak = [name for name, value in zip(names, share, strict=True) if value < WEAK_DATA_SHARE]
+        note = (f"# the flights' data barely observed: {', '.join(weak)} (their values are mostly the configured prior)\n"
+                if weak else "")
+        return ("# campaign calibration (georef batch --shared-calibration)\n" + note +
                 f"[mounting]\nlever_arm_gnss = [{numbers}]\nlever_arm_gnss_sigma = [{sigmas}]\n\n"
                 f"[gnss]\ngnss_latency = {self.mean[3]:.5f}\ngnss_latency_sigma = {max(sigma[3], 1e-5):.5f}\n")
 

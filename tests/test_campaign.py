@@ -55,6 +55,29 @@ def test_combination_is_the_joint_solution_and_each_flight_resolves_to_it():
     np.testing.assert_allclose(resolved, estimate.mean, atol=1e-9)
 
 
+def test_data_share_says_when_the_campaign_value_is_the_prior():
+    """Sixteen flights whose data observe the calibration remove most of the priors' variance; flights whose
+    data are a hundred times weaker than a taped prior (5 cm, 2 ms) leave it, and calibration.toml says so."""
+    rng = np.random.default_rng(3)
+    truth = np.array([0.45, 0.15, -1.65, 0.0])
+    strong = {f"f{i}": _flight(rng, truth)[0] for i in range(16)}
+    estimate = combine(strong, {name: (PRIOR_MEAN, PRIOR_COV) for name in strong})
+    assert np.all(estimate.data_share() > 0.7), estimate.data_share()
+    assert "barely observed" not in estimate.config_toml()
+    taped = (truth, np.diag([0.05, 0.05, 0.05, 0.002]) ** 2)
+    weak = {}
+    for i in range(3):
+        A = rng.standard_normal((4, 4)) * np.array([0.4, 0.4, 0.4, 0.05])
+        information = np.linalg.inv(A @ A.T + np.diag([1.0, 1.0, 1.0, 0.1]) ** 2)  # sigmas ~1 m, 0.1 s
+        post_cov = np.linalg.inv(information + np.linalg.inv(taped[1]))
+        weak[f"w{i}"] = FlightReduction(truth.copy(), post_cov, *taped)
+    estimate = combine(weak, {name: taped for name in weak})
+    share = estimate.data_share()
+    assert np.all(share < 0.05), share
+    assert "barely observed: lever arm x, lever arm y, lever arm z, time offset (their" in estimate.config_toml()
+    assert estimate.to_json()["data_share"] == pytest.approx(list(share))
+
+
 def test_configured_priors_count_once_per_distinct_prior():
     rng = np.random.default_rng(3)
     truth = np.array([0.45, 0.15, -1.65, 0.0])

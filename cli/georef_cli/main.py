@@ -809,6 +809,15 @@ def _print_campaign(calibration: dict, summary_json: Path | None) -> None:
                       f"{flight['chi2']:.1f} ({flight['dof']})",
                       "yes" if flight["consistent"] else "[bold red]NO[/]")
     _messages(summary_json).print(table)
+    from georef.campaign import WEAK_DATA_SHARE
+
+    names = ("lever arm x", "lever arm y", "lever arm z", "time offset")
+    weak = [f"{name} ({100 * share:.0f} %)" for name, share in zip(names, calibration.get("data_share", [1.0] * 4),
+                                                                     strict=True) if share < WEAK_DATA_SHARE]
+    if weak:
+        console.print(f"[yellow]notice:[/] the flights' data removed little of the configured prior's variance on "
+                      f"{', '.join(weak)}: those campaign values are mostly the prior handed back, not a measured "
+                      "calibration (longer flights, turns and speed changes observe them)", highlight=False)
 
 
 def _cell(value: Any) -> str:
