@@ -117,8 +117,8 @@ class CampaignEstimate:
         share = self.data_share()
         names = ("lever arm x", "lever arm y", "lever arm z", "time offset")
         weak = [name for name, value in zip(names, share, strict=True) if value < WEAK_DATA_SHARE]
-        note = (f"# the flights' data barely observed: {', '.join(weak)} (their values are mostly the configured prior)\n"
-                if weak else "")
+        note = (f"# the flights' data barely observed: {', '.join(weak)} "
+                "(their values are mostly the configured prior)\n" if weak else "")
         return ("# campaign calibration (georef batch --shared-calibration)\n" + note +
                 f"[mounting]\nlever_arm_gnss = [{numbers}]\nlever_arm_gnss_sigma = [{sigmas}]\n\n"
                 f"[gnss]\ngnss_latency = {self.mean[3]:.5f}\ngnss_latency_sigma = {max(sigma[3], 1e-5):.5f}\n")
