@@ -120,12 +120,14 @@ def geodesy_figures(frames: OutputFrames | None, table: pd.DataFrame) -> dict[st
     vertical = float(np.median(valid["sigma_u"])) if len(valid) else 0.0
     warnings = []
     for t in used:
-        limit = vertical if t.what.startswith("WGS 84 ellipsoidal height") else horizontal
+        height = t.what.startswith("WGS 84 ellipsoidal height")
+        limit = vertical if height else horizontal
         if t.accuracy_m is None:
             warnings.append(f"{t.what}: PROJ states no accuracy for {t.description}")
         elif t.accuracy_m > limit:
+            axis = "vertical" if height else "per-axis horizontal"
             warnings.append(f"{t.what}: PROJ states {t.accuracy_m:g} m for {t.description}, more than the median "
-                            f"sigma {limit:.2f} m; the sigma columns do not include it")
+                            f"{axis} sigma {limit:.2f} m; the sigma columns do not include it")
     return {"output_crs": frames.horizontal_name, "output_heights": frames.height_name,
             "proj_transformations": [str(t) for t in used], "proj_accuracy_m": max(stated) if stated else None,
             "geodesy_warnings": warnings}

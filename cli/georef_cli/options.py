@@ -78,10 +78,13 @@ SummaryJson = Annotated[Path | None, typer.Option(
                            "writes it to standard output.")]
 
 _METHODS_HELP = ("rts (full-state EKF + RTS smoother; default), ekf (the forward filter alone), axis (the thesis's "
-                 "per-axis method) or graph (GTSAM factor-graph smoother)")
+                 "per-axis method) or graph (GTSAM factor-graph smoother; it also estimates the GNSS lever arm and "
+                 "time offset, with priors from the config's lever_arm_gnss_sigma [m] and gnss_latency_sigma [s]; "
+                 "its solver, robust kernel and scale factors are set in the config's [graph] section)")
 ProcessMethod = Annotated[Method | None, method_option(f"Fusion method: {_METHODS_HELP}.")]  # type: ignore[valid-type]
 FuseMethod = Annotated[FuseMethodChoice, method_option(  # type: ignore[valid-type]
-    "rts (EKF + smoother), ekf (forward filter only) or graph (GTSAM factor-graph smoother started from rts).")]
+    "rts (EKF + smoother), ekf (forward filter only) or graph (GTSAM factor-graph smoother started from rts; its "
+    "settings: the config's [graph] section, lever_arm_gnss_sigma and gnss_latency_sigma).")]
 BatchMethod = Annotated[Method | None, method_option(  # type: ignore[valid-type]
     f"Override every flight's method (default: each flight's flight.toml): {_METHODS_HELP}.")]
 AttitudeMethod = Annotated[AttitudeMethodChoice, method_option(  # type: ignore[valid-type]
