@@ -116,7 +116,8 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None,
         result = process(job.pos, job.camera, cfg, calibration_prior=calibration_prior)
         with atomic_group():
             for spec in specs:
-                write_export(result.table, spec.path, spec.fmt, frames=result.frames, odm_angles=cfg.output.odm_angles)
+                write_export(result.columns, spec.path, spec.fmt, frames=result.frames,
+                             odm_angles=cfg.output.odm_angles)
         row["outputs"] += [{"what": "table" if k == 0 else "export", "format": spec.fmt, "path": str(spec.path)}
                            for k, spec in enumerate(specs)]
         summary = result.summary()

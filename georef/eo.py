@@ -15,7 +15,6 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from georef.align import GnssEpochs
 from georef.config import MountingSection, OutputSection
@@ -27,7 +26,15 @@ from georef.io.camera import Exposures
 from georef.io.image_names import ImageNames
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    import pandas as pd
+
     from georef.frames.heights import OutputFrames
+
+#: an EO table as columns (name -> one value per exposure, in the order of ``docs/formats.md``): what the CLI
+#: checks and writes without pandas (importing it costs 0.35-0.4 s); :func:`eo_frame` makes the DataFrame
+EoColumns = dict[str, np.ndarray]
 
 EO_COLUMNS = ["frame", "time", "lat", "lon", "height", "roll", "pitch", "yaw", "sigma_n", "sigma_e", "sigma_u",
               "sigma_roll", "sigma_pitch", "sigma_yaw", "track", "yaw_minus_track"]
@@ -67,10 +74,30 @@ def _flags(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, outag
     return np.array(["; ".join(f) for f in flags], dtype=object)
 
 
+def flag_mask(table: Mapping[str, object], text: str) -> np.ndarray:
+    """Rows of an EO table (columns or a DataFrame) whose flag contains ``text``."""
+    flags = np.asarray(table["flag"], dtype=str)
+    return np.char.find(flags, text) >= 0 if len(flags) else np.zeros(0, dtype=bool)
+
+
+def eo_frame(columns: EoColumns) -> pd.DataFrame:
+    """The EO table ``columns`` as a pandas DataFrame (text columns as pandas' string dtype)."""
+    import pandas as pd
+
+    return pd.DataFrame(columns)
+
+
 def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, mounting: MountingSection,
                     output: OutputSection | None = None, outage_min_s: float = 2.5, frames: OutputFrames | None = None,
                     image_names: ImageNames | None = None) -> pd.DataFrame:
-    """The EO table of every exposure (rows outside the navigation span have empty values and a flag).
+    """The EO table of every exposure as a DataFrame (:func:`camera_eo_columns`, which says what is in it)."""
+    return eo_frame(camera_eo_columns(exposures, states, gnss, mounting, output, outage_min_s, frames, image_names))
+
+
+def camera_eo_columns(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, mounting: MountingSection,
+                      output: OutputSection | None = None, outage_min_s: float = 2.5,
+                      frames: OutputFrames | None = None, image_names: ImageNames | None = None) -> EoColumns:
+    """The EO table of every exposure, as columns (rows outside the navigation span have empty values and a flag).
 
     Flags (joined by ``"; "``): outside the navigation span; in a GNSS outage of at least ``outage_min_s`` [s];
     more than ``outage_min_s`` after the last GNSS fix or before the first one (with the seconds of inertial-only
@@ -134,9 +161,10 @@ def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpoc
         }
         for name, value in values.items():
             out[name][inside] = value
-    table = pd.DataFrame({"frame": exposures.frame, "time": exposures.time, **out})
+    table: EoColumns = {"frame": exposures.frame}
     if image_names is not None:
-        table.insert(1, "image", image_names.names([str(f) for f in exposures.frame]))
+        table["image"] = np.array(image_names.names([str(f) for f in exposures.frame]), dtype=object)
+    table.update({"time": exposures.time, **out})
     if frames is not None and frames.height == "orthometric":
         table["height_orthometric"] = frames.output_heights(out["lat"], out["lon"], out["height"])
     if frames is not None and frames.horizontal is not None:
@@ -161,10 +189,10 @@ def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpoc
             opk_sigma = np.degrees(np.sqrt(np.where(opk_var >= 0.0, opk_var, np.nan)))
             for i, name in enumerate(("sigma_omega", "sigma_phi", "sigma_kappa")):
                 grid[name][inside] = opk_sigma[:, i]
-        for name, values in grid.items():
-            table[name] = values
+        table.update(grid)
     flags = _flags(exposures, states, gnss, outage_min_s)
-    sigmas = table[["sigma_n", "sigma_e", "sigma_u", "sigma_roll", "sigma_pitch", "sigma_yaw"]].to_numpy()
+    sigmas = np.column_stack([table[name] for name in ("sigma_n", "sigma_e", "sigma_u", "sigma_roll", "sigma_pitch",
+                                                        "sigma_yaw")])
     broken = states.inside & ~np.all(np.isfinite(sigmas), axis=1)
     for i in np.flatnonzero(broken):
         flags[i] = f"{flags[i]}; {FLAG_NO_SIGMA}" if flags[i] else FLAG_NO_SIGMA

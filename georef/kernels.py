@@ -54,7 +54,7 @@ BUILD_FORMAT = 2
 
 #: an argument or result: (dtype, number of dimensions); 0 dimensions is a scalar. Arrays are C-ordered.
 Slot = tuple[str, int]
-_NUMBA_TYPE = {"float64": "float64", "int64": "int64", "bool": "bool_"}
+_NUMBA_TYPE = {"float64": "float64", "int64": "int64", "bool": "bool_", "uint8": "uint8"}
 
 
 def _numba_type(slot: Slot) -> str:
@@ -92,7 +92,8 @@ class KernelSpec:
     functions: dict[str, KernelFunction]
 
 
-F1, F2, F3, I1, B1 = ("float64", 1), ("float64", 2), ("float64", 3), ("int64", 1), ("bool", 1)
+F1, F2, F3, I1, I2, B1 = ("float64", 1), ("float64", 2), ("float64", 3), ("int64", 1), ("int64", 2), ("bool", 1)
+U1 = ("uint8", 1)
 FLOAT, INT, BOOL = ("float64", 0), ("int64", 0), ("bool", 0)
 
 KERNELS: dict[str, KernelSpec] = {
@@ -135,6 +136,11 @@ KERNELS: dict[str, KernelSpec] = {
             args=(F1, F2, F2, F2, F1, F1, F1, F2, FLOAT, FLOAT, FLOAT, FLOAT, FLOAT, BOOL, FLOAT, FLOAT, FLOAT,
                   FLOAT),
             returns=(F2, F2, F2))}),
+    # a clean block of a text table: bytes, length, separator, fields, output column per field, kind per output,
+    # lines -> numbers, text cell starts and ends, status
+    "table": KernelSpec(
+        "georef.io.table_kernel",
+        {"parse_block": KernelFunction(args=(U1, INT, INT, INT, I1, I1, INT), returns=(F2, I2, I2, I1))}),
     "tilt": KernelSpec(
         "georef.attitude.tilt",
         {"complementary": KernelFunction(args=(F1, F2, F1, F1, FLOAT), returns=(F2,)),

@@ -3,7 +3,7 @@
 >>> from georef.pipeline import process
 >>> from georef.config import AxisSettings, CameraColumns, CameraSection, GnssSection, ProcessingConfig
 >>> result = process("POS.txt", "Kamera.txt", ProcessingConfig().updated(lever_arm_gnss=(0.4, 0.1, -1.6)))
->>> result.table  # one row per frame, see georef.eo
+>>> result.table  # one row per frame, see georef.eo (a DataFrame; result.columns holds the same as numpy arrays)
 """
 
 from __future__ import annotations
@@ -15,11 +15,18 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from georef.align import to_reference_day
 from georef.config import AxisSettings, CameraColumns, CameraSection, GnssSection, ProcessingConfig
-from georef.eo import FLAG_AFTER_LAST_FIX, FLAG_BEFORE_FIRST_FIX, FLAG_OUTSIDE, camera_eo_table
+from georef.eo import (
+    FLAG_AFTER_LAST_FIX,
+    FLAG_BEFORE_FIRST_FIX,
+    FLAG_OUTSIDE,
+    EoColumns,
+    camera_eo_columns,
+    eo_frame,
+    flag_mask,
+)
 from georef.exposure import interpolate_to_exposures
 from georef.frames.rotations import wrap_pi
 from georef.fusion import axis, ins
@@ -32,6 +39,10 @@ from georef.io.image_names import ImageNames
 from georef.io.pos import PosLog, read_pos
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    import pandas as pd
+
     from georef.frames.heights import OutputFrames
 
 #: method -> (solver on a POS log, given the whole configuration and the campaign's calibration prior (graph
@@ -55,9 +66,13 @@ Progress = Callable[[str], None]
 
 @dataclass
 class ProcessResult:
-    """Everything ``process`` produced: the EO table, the navigation solution and what was noticed."""
+    """Everything ``process`` produced: the EO table, the navigation solution and what was noticed.
 
-    table: pd.DataFrame
+    ``columns`` is the EO table as numpy arrays (:func:`georef.eo.camera_eo_columns`); ``table`` the same as a
+    pandas DataFrame, made on first use (pandas is imported then: the CLI checks and writes the CSV table from
+    ``columns`` and never pays for it). Assigning ``table`` replaces both."""
+
+    columns: EoColumns
     nav: NavSolution
     log: PosLog
     exposures: Exposures
@@ -66,21 +81,33 @@ class ProcessResult:
     timings: dict[str, float] = field(default_factory=dict)
     #: the output CRS and heights (None: WGS 84 ellipsoidal only)
     frames: OutputFrames | None = None
+    _frame: pd.DataFrame | None = field(default=None, init=False, repr=False, compare=False)
+
+    @property
+    def table(self) -> pd.DataFrame:
+        """The EO table, one row per frame (:mod:`georef.eo`)."""
+        if self._frame is None:
+            self._frame = eo_frame(self.columns)
+        return self._frame
+
+    @table.setter
+    def table(self, frame: pd.DataFrame) -> None:
+        self._frame = frame
+        self.columns = {name: frame[name].to_numpy() for name in frame.columns}
 
     def summary(self) -> dict[str, object]:
         """Figures for the end-of-run report (units in the keys). The yaw-offset figures are those of
         ``--method axis`` (None otherwise); the heading source, the unit's yaw origin and the fitted noise those of
         the full-state filters (see :func:`solution_figures`)."""
-        flags = self.table["flag"].astype(str)
         yaw = self.nav.axis_info.yaw_offset if self.nav.axis_info is not None else None
         gnss = self.nav.gnss
         summary: dict[str, object] = {
-            "frames_written": len(self.table),
-            "frames_flagged": int((flags != "").sum()),
-            "frames_outside_span": int(flags.str.contains(FLAG_OUTSIDE, regex=False).sum()),
-            "frames_in_outage": int(flags.str.contains("GNSS outage", regex=False).sum()),
-            "frames_after_last_fix": int(flags.str.contains(FLAG_AFTER_LAST_FIX, regex=False).sum()),
-            "frames_before_first_fix": int(flags.str.contains(FLAG_BEFORE_FIRST_FIX, regex=False).sum()),
+            "frames_written": len(self.columns["flag"]),
+            "frames_flagged": int(np.count_nonzero(np.asarray(self.columns["flag"], dtype=str) != "")),
+            "frames_outside_span": int(np.count_nonzero(flag_mask(self.columns, FLAG_OUTSIDE))),
+            "frames_in_outage": int(np.count_nonzero(flag_mask(self.columns, "GNSS outage"))),
+            "frames_after_last_fix": int(np.count_nonzero(flag_mask(self.columns, FLAG_AFTER_LAST_FIX))),
+            "frames_before_first_fix": int(np.count_nonzero(flag_mask(self.columns, FLAG_BEFORE_FIRST_FIX))),
             "time_span_s": (float(self.log.time[0]), float(self.log.time[-1])),
             "imu_rows": len(self.log),
             "imu_rate_hz": self.log.sample_rate_hz,
@@ -96,11 +123,11 @@ class ProcessResult:
             "method": self.nav.method,
         }
         summary.update(solution_figures(self.nav, self.config.gnss))
-        summary.update(geodesy_figures(self.frames, self.table))
+        summary.update(geodesy_figures(self.frames, self.columns))
         return summary
 
 
-def geodesy_figures(frames: OutputFrames | None, table: pd.DataFrame) -> dict[str, object]:
+def geodesy_figures(frames: OutputFrames | None, table: Mapping[str, object]) -> dict[str, object]:
     """The output coordinates and what PROJ did to make them:
 
     * ``output_crs``: the projected CRS (None without one); ``output_heights``: "WGS 84 ellipsoidal" or the
@@ -108,16 +135,17 @@ def geodesy_figures(frames: OutputFrames | None, table: pd.DataFrame) -> dict[st
     * ``proj_transformations``: each transformation PROJ used, with its stated accuracy;
     * ``proj_accuracy_m``: the largest stated accuracy [m] (None: none stated or none used);
     * ``geodesy_warnings``: the transformations whose stated accuracy exceeds the median horizontal (or, for
-      heights, vertical) sigma of the table — georef's sigmas do not contain them.
+      heights, vertical) sigma of the table (columns or a DataFrame) — georef's sigmas do not contain them.
     """
     if frames is None:
         return {"output_crs": None, "output_heights": "WGS 84 ellipsoidal", "proj_transformations": [],
                 "proj_accuracy_m": None, "geodesy_warnings": []}
     used = frames.describe()
     stated = [t.accuracy_m for t in used if t.accuracy_m is not None]
-    valid = table.dropna(subset=["sigma_n", "sigma_e", "sigma_u"])
-    horizontal = float(np.median(np.sqrt((valid["sigma_n"] ** 2 + valid["sigma_e"] ** 2) / 2))) if len(valid) else 0.0
-    vertical = float(np.median(valid["sigma_u"])) if len(valid) else 0.0
+    n, e, u = (np.asarray(table[name], dtype=float) for name in ("sigma_n", "sigma_e", "sigma_u"))
+    valid = ~(np.isnan(n) | np.isnan(e) | np.isnan(u))
+    horizontal = float(np.median(np.sqrt((n[valid] ** 2 + e[valid] ** 2) / 2))) if valid.any() else 0.0
+    vertical = float(np.median(u[valid])) if valid.any() else 0.0
     warnings = []
     for t in used:
         height = t.what.startswith("WGS 84 ellipsoidal height")
@@ -274,8 +302,8 @@ def process(pos_path: Path | str, camera_path: Path | str, cfg: ProcessingConfig
     start = time.perf_counter()
     say("interpolating to exposures")
     states = interpolate_to_exposures(nav, exposures.time)
-    table = camera_eo_table(exposures, states, log.gnss, cfg.mounting, cfg.output, frames=frames,
-                            image_names=image_names)
+    columns = camera_eo_columns(exposures, states, log.gnss, cfg.mounting, cfg.output, frames=frames,
+                                image_names=image_names)
     timings["interpolate"] = time.perf_counter() - start
-    return ProcessResult(table=table, nav=nav, log=log, exposures=exposures, config=cfg,
+    return ProcessResult(columns=columns, nav=nav, log=log, exposures=exposures, config=cfg,
                          notices=[*log.notices, *exposures.notices], timings=timings, frames=frames)

@@ -34,10 +34,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from georef.distributions import chi2_isf, chi2_sf  # scipy.special costs every run 0.2 s of import
-from georef.eo import FLAG_AFTER_LAST_FIX, FLAG_BEFORE_FIRST_FIX, FLAG_NO_SIGMA, FLAG_OUTSIDE
+from georef.eo import FLAG_AFTER_LAST_FIX, FLAG_BEFORE_FIRST_FIX, FLAG_NO_SIGMA, FLAG_OUTSIDE, flag_mask
 
 if TYPE_CHECKING:
-    import pandas as pd
+    from collections.abc import Mapping
 
     from georef.config import ProcessingConfig
     from georef.fusion.solution import NavSolution
@@ -465,23 +465,28 @@ def check_imu_gaps(nav: NavSolution) -> Check | None:
                  "(dropped samples, a full disk, interpolated rows).")
 
 
-def check_frames(nav: NavSolution, table: pd.DataFrame) -> Check:
+def _frame_ids(table: Mapping[str, Any]) -> np.ndarray:
+    """The ``frame`` column of an EO table (columns or a DataFrame) as text."""
+    return np.asarray(table["frame"]).astype(str)
+
+
+def check_frames(nav: NavSolution, table: Mapping[str, Any]) -> Check:
     """``frames``: exposures outside the navigation span. More than half (or all) fails: the camera's clock does
-    not match the POS log's (a wrong UTC offset, a different day)."""
-    n = len(table)
+    not match the POS log's (a wrong UTC offset, a different day). ``table``: the EO table, as columns
+    (:func:`georef.eo.camera_eo_columns`) or a DataFrame."""
+    n = len(table["flag"])
     if n == 0:
         return Check("frames", FAIL, "the exposure file holds no frame")
-    flags = table["flag"].astype(str)
-    outside = flags.str.contains(FLAG_OUTSIDE, regex=False).to_numpy()
+    outside = flag_mask(table, FLAG_OUTSIDE)
     count = int(outside.sum())
     valid = np.flatnonzero(nav.valid)
     if len(valid) == 0:
         return Check("frames", FAIL, f"no frame of {n} could be georeferenced: the filter produced no solution")
     t0, t1 = float(nav.time[valid[0]]), float(nav.time[valid[-1]])
     span = f"the navigation span {t0:.1f} to {t1:.1f} s"
-    broken = flags.str.contains(FLAG_NO_SIGMA, regex=False).to_numpy()
+    broken = flag_mask(table, FLAG_NO_SIGMA)
     if broken.any():
-        frames = table["frame"].astype(str).to_numpy()[broken]
+        frames = _frame_ids(table)[broken]
         listed = ", ".join(frames[:LIST_AT_MOST]) + (" ..." if broken.sum() > LIST_AT_MOST else "")
         return Check("frames", FAIL, f"{int(broken.sum())} of {n} frames have no valid sigma (frames {listed}): the "
                      "solution's covariance is numerically broken there, so their positions and attitudes cannot "
@@ -490,20 +495,20 @@ def check_frames(nav: NavSolution, table: pd.DataFrame) -> Check:
     if count == 0:
         from georef.io.camera import FLAG_INCOMPLETE
 
-        cut = flags.str.contains(FLAG_INCOMPLETE, regex=False).to_numpy()
+        cut = flag_mask(table, FLAG_INCOMPLETE)
         if cut.any():
-            frames = table["frame"].astype(str).to_numpy()[cut]
+            frames = _frame_ids(table)[cut]
             listed = ", ".join(frames[:LIST_AT_MOST]) + (" ..." if cut.sum() > LIST_AT_MOST else "")
             return Check("frames", WARN, f"{int(cut.sum())} of {n} exposure lines were cut short in the exposure "
                          f"file and their rows are empty (frames {listed}); the other frames lie inside {span}. "
                          "Recover those lines from the camera's own log.")
         return Check("frames", PASS, f"all {n} frames inside {span}")
-    frames = table["frame"].astype(str).to_numpy()[outside]
+    frames = _frame_ids(table)[outside]
     listed = ", ".join(frames[:LIST_AT_MOST]) + (" ..." if count > LIST_AT_MOST else "")
     if count > OUTSIDE_FAIL_SHARE * n:
         # how far the exposures are off: their median time against the span's centre (a clock off by a UTC
         # offset shows as whole hours)
-        shift = float(np.median(table["time"].to_numpy(float)) - 0.5 * (t0 + t1))
+        shift = float(np.median(np.asarray(table["time"], dtype=float)) - 0.5 * (t0 + t1))
         where = "later" if shift > 0 else "earlier"
         return Check("frames", FAIL, f"{count} of {n} frames lie outside {span} (frames {listed}); the exposures "
                      f"lie {abs(shift):.0f} s ({abs(shift) / 3600:.2f} h) {where} than the navigation (median frame "
@@ -515,15 +520,15 @@ def check_frames(nav: NavSolution, table: pd.DataFrame) -> Check:
                  "cannot be georeferenced.")
 
 
-def check_gnss_ends(nav: NavSolution, table: pd.DataFrame) -> Check:
-    """``GNSS at the ends``: frames after the last GNSS fix or before the first one (inertial only there)."""
-    flags = table["flag"].astype(str)
-    after = flags.str.contains(FLAG_AFTER_LAST_FIX, regex=False).to_numpy()
-    before = flags.str.contains(FLAG_BEFORE_FIRST_FIX, regex=False).to_numpy()
+def check_gnss_ends(nav: NavSolution, table: Mapping[str, Any]) -> Check:
+    """``GNSS at the ends``: frames after the last GNSS fix or before the first one (inertial only there);
+    ``table`` as for :func:`check_frames`."""
+    after = flag_mask(table, FLAG_AFTER_LAST_FIX)
+    before = flag_mask(table, FLAG_BEFORE_FIRST_FIX)
     if not after.any() and not before.any():
         return Check("GNSS at the ends", PASS, "no frame before the first GNSS fix or after the last one")
-    time = table["time"].to_numpy(float)
-    frames = table["frame"].astype(str).to_numpy()
+    time = np.asarray(table["time"], dtype=float)
+    frames = _frame_ids(table)
     first, last = float(np.min(nav.gnss.time)), float(np.max(nav.gnss.time))
     parts = []
     if after.any():
@@ -539,8 +544,9 @@ def check_gnss_ends(nav: NavSolution, table: pd.DataFrame) -> Check:
                  "sigmas grow with the time since the fix. Check those frames, or log GNSS over the whole flight.")
 
 
-def assess(nav: NavSolution, table: pd.DataFrame | None = None, cfg: ProcessingConfig | None = None) -> Verdict:
-    """Every check that applies to ``nav`` (any method), the EO ``table`` (``georef process``) and ``cfg``.
+def assess(nav: NavSolution, table: Mapping[str, Any] | None = None, cfg: ProcessingConfig | None = None) -> Verdict:
+    """Every check that applies to ``nav`` (any method), the EO ``table`` (``georef process``; columns or a
+    DataFrame) and ``cfg``.
 
     The full-state filters (``rts``, ``ekf``: ``nav.diagnostics`` set) get every check; ``axis`` and ``graph``
     the rejected fixes and, with a table, the frame checks.
@@ -554,5 +560,5 @@ def assess(nav: NavSolution, table: pd.DataFrame | None = None, cfg: ProcessingC
 
 
 def assess_result(result: Any) -> Verdict:
-    """:func:`assess` of a :class:`georef.pipeline.ProcessResult`."""
-    return assess(result.nav, result.table, result.config)
+    """:func:`assess` of a :class:`georef.pipeline.ProcessResult` (its EO table as columns: no pandas)."""
+    return assess(result.nav, result.columns, result.config)

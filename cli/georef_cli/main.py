@@ -294,7 +294,7 @@ def process(
     with progress if progress is not None else contextlib.nullcontext():
         result = run(pos, camera, cfg, progress=step)
         def write(spec: Any) -> None:
-            write_target(spec.path, lambda path: write_export(result.table, path, spec.fmt, frames=result.frames,
+            write_target(spec.path, lambda path: write_export(result.columns, path, spec.fmt, frames=result.frames,
                                                               odm_angles=cfg.output.odm_angles))
 
         with atomic_group():  # the files and the report together, or none of them (a full disk, a refused target)
@@ -419,11 +419,12 @@ def _print_summary(result: Any, output: Path, verbose: bool, to: Console) -> Non
         table.add_row("coordinates", escape(f"{s.get('output_crs') or 'WGS 84'}, heights {s['output_heights']}"))
         for used in s.get("proj_transformations", []):
             table.add_row("PROJ", escape(str(used)))
-    valid = result.table.dropna(subset=["sigma_n"])
-    if len(valid):
-        horizontal = np.hypot(valid["sigma_n"], valid["sigma_e"])
+    eo = result.columns  # numpy arrays: pandas is not imported for a summary
+    valid = ~np.isnan(np.asarray(eo["sigma_n"], dtype=float))
+    if valid.any():
+        horizontal = np.hypot(eo["sigma_n"][valid], eo["sigma_e"][valid])
         table.add_row("median sigma", f"horizontal {np.median(horizontal):.2f} m, vertical "
-                      f"{np.median(valid['sigma_u']):.2f} m, yaw {np.median(valid['sigma_yaw']):.2f} deg")
+                      f"{np.median(eo['sigma_u'][valid]):.2f} m, yaw {np.median(eo['sigma_yaw'][valid]):.2f} deg")
     to.print(table)
     notices = result.notices
     if notices:

@@ -31,12 +31,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from georef.io.atomic import atomic_write
 from georef.io.eo_table import write_eo_csv
 
 if TYPE_CHECKING:
+    import pandas as pd
+
+    from georef.eo import EoColumns
     from georef.frames.heights import OutputFrames
 
 FORMATS = ("csv", "metashape", "pix4d", "odm", "parge", "geojson", "kml")
@@ -155,6 +157,8 @@ def _horizontal_sigma(rows: pd.DataFrame) -> pd.Series:
 
 
 def write_metashape(table: pd.DataFrame, path: Path, frames: OutputFrames | None) -> None:
+    import pandas as pd
+
     rows = _grid(table, "metashape", frames)
     out = pd.DataFrame({"label": _labels(rows), "x": rows["easting"].round(4), "y": rows["northing"].round(4),
                         "z": _heights(rows, frames).round(4), "omega": rows["omega"].round(6),
@@ -176,6 +180,8 @@ def northing_first(frames: OutputFrames) -> bool:
 
 
 def write_pix4d(table: pd.DataFrame, path: Path, frames: OutputFrames | None) -> None:
+    import pandas as pd
+
     rows = _grid(table, "pix4d", frames)
     assert frames is not None
     first, second = ("northing", "easting") if northing_first(frames) else ("easting", "northing")
@@ -254,10 +260,11 @@ def write_kml(table: pd.DataFrame, path: Path, frames: OutputFrames | None) -> N
         handle.write("\n".join(parts) + "\n")
 
 
-def write_export(table: pd.DataFrame, path: Path | str, fmt: str, crs: str | None = None,
+def write_export(table: pd.DataFrame | EoColumns, path: Path | str, fmt: str, crs: str | None = None,
                  frames: OutputFrames | None = None, odm_angles: bool = False) -> Path:
-    """Write ``table`` in format ``fmt`` (one of :data:`FORMATS`). ``frames`` gives the CRS and heights of the
-    run (``crs`` alone: ellipsoidal heights in that CRS)."""
+    """Write ``table`` (a DataFrame, or columns as :func:`georef.eo.camera_eo_columns` gives them) in format
+    ``fmt`` (one of :data:`FORMATS`). ``frames`` gives the CRS and heights of the run (``crs`` alone: ellipsoidal
+    heights in that CRS). The CSV table is written without pandas; the other formats make a DataFrame."""
     path = Path(path)
     format_of(path, fmt)
     if frames is None and crs:
@@ -267,7 +274,12 @@ def write_export(table: pd.DataFrame, path: Path | str, fmt: str, crs: str | Non
     check_exports([ExportSpec(fmt, path)], frames)
     if fmt == "csv":
         write_eo_csv(table, path)
-    elif fmt == "metashape":
+        return path
+    if isinstance(table, dict):
+        from georef.eo import eo_frame
+
+        table = eo_frame(table)
+    if fmt == "metashape":
         write_metashape(table, path, frames)
     elif fmt == "pix4d":
         write_pix4d(table, path, frames)

@@ -20,28 +20,37 @@ The rules (``docs/formats.md``, "Reading text tables"):
   digits of other scripts, decimal commas and quoted numbers are errors naming line and column. Messages
   quote at most :data:`~georef.io.errors.EXCERPT_CHARS` characters of a cell.
 
-The file is streamed once, in 256 KiB blocks, through a checker (:class:`_Scanner`) on its way to pandas' C
-parser, which converts only the wanted columns; no copy of the whole file is held. When pandas refuses a
-cell, a second, chunked pass finds its line and column.
+The file is streamed once, in 256 KiB blocks, through a checker (:class:`_Scanner`) on its way to numpy's
+``loadtxt``, which converts only the wanted columns; no copy of the whole file is held. That is the path of a
+clean file: every line with the header's number of fields, printable ASCII, no quote, every number finite.
+Anything else (or any cell ``loadtxt`` refuses) is read again by pandas' C parser, whose results and messages
+define the rules; when pandas refuses a cell, a second, chunked pass finds its line and column. Both parsers
+round correctly (numpy through Python's ``PyOS_string_to_double``, pandas 3 through fast_float), so a clean
+file gives the same numbers either way (``tests/test_table.py`` checks it). The first path exists for
+speed: importing pandas costs 0.35-0.4 s, and ``georef process`` needs it for nothing else (``docs/method-ins.md``,
+section 10).
 """
 
 from __future__ import annotations
 
 import codecs
 import csv
+import functools
 import io
 import os
 import re
 import stat
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import BinaryIO, Literal
+from typing import TYPE_CHECKING, BinaryIO, Literal
 
 import numpy as np
-import pandas as pd
 
 from georef.io.errors import InputError, InputNotice, excerpt
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 Kind = Literal["float", "int", "hex", "str"]
 
@@ -376,8 +385,12 @@ class _Scanner(io.RawIOBase):
     counts are vectorised with numpy (separator positions, or word starts for blank-separated files).
     """
 
-    def __init__(self, handle: BinaryIO, path: Path, sep: str | None, header: list[str], offset: int) -> None:
+    def __init__(self, handle: BinaryIO, path: Path, sep: str | None, header: list[str], offset: int,
+                 check_clean: bool = False) -> None:
         super().__init__()
+        #: whether every byte so far is one of ``_CLEAN_BYTES`` (looked at with ``check_clean`` only)
+        self.clean = True
+        self._check_clean = check_clean
         self._handle = handle
         self.path = path
         self.sep = sep
@@ -426,6 +439,8 @@ class _Scanner(io.RawIOBase):
 
     # -- checks of one block
     def _check(self, chunk: bytes) -> None:
+        if self._check_clean and self.clean and chunk.translate(None, _CLEAN_BYTES):
+            self.clean = False
         nul = chunk.find(b"\0")
         if nul >= 0:
             self._fail(chunk, nul, f"a NUL byte (byte {self.offset + nul} of the file): not text (a damaged copy, "
@@ -606,6 +621,8 @@ def _cell_problem(text: str, kind: Kind, sep: str | None) -> str:
 
 def _bad_cells(text: pd.Series, kind: Kind) -> np.ndarray:
     """Mask of non-empty cells of ``text`` (strings, NaN = empty) that are not valid ``kind``."""
+    import pandas as pd
+
     present = text.notna().to_numpy()
     if kind == "str":
         return present & text.str.contains(_BAD_TEXT, regex=True, na=False).to_numpy()
@@ -781,6 +798,8 @@ def read_table(
 
 def _read_csv(source: BinaryIO, layout: _Layout, usecols: list[int] | None, dtypes: dict[int, type],
               **options: object) -> pd.DataFrame:
+    import pandas as pd
+
     sep = layout.dialect.separator
     return pd.read_csv(source, sep=r"\s+" if sep is None else sep, header=None, names=list(range(len(layout.header))),
                        usecols=usecols, dtype=dtypes, quoting=csv.QUOTE_NONE, skip_blank_lines=False,
@@ -794,6 +813,8 @@ def _parse(layout: _Layout, usecols: list[int], dtypes: dict[int, type]) -> tupl
     When no line has as many fields as the header, the C parser refuses ``usecols`` ("Too many columns
     specified"); then every column is read (as text where not wanted), which only such a file pays for.
     """
+    import pandas as pd
+
     for attempt in ("wanted", "all"):
         layout.handle.seek(layout.data_start)
         scanner = _Scanner(layout.handle, layout.path, layout.dialect.separator, layout.header, layout.data_start)
@@ -816,34 +837,149 @@ def _parse(layout: _Layout, usecols: list[int], dtypes: dict[int, type]) -> tupl
     raise AssertionError("unreachable")
 
 
+#: bytes of a clean file (:func:`_parse_clean`): printable ASCII but the double quote, tab, line ends
+_CLEAN_BYTES = bytes(range(32, 127)).replace(b'"', b"") + b"\t\n\r"
+#: text widths [characters] numpy reads a hex and a text cell into; a cell that fills one goes to pandas
+_HEX_WIDTH, _STR_WIDTH = 24, 64
+
+
+#: bytes handed to the compiled reader at a time (whole lines)
+_KERNEL_BLOCK = 1 << 23
+_KERNEL_KINDS = {"float": 0, "int": 0, "hex": 1, "str": 2}  # georef.io.table_kernel's FLOAT, HEX, TEXT
+
+
+@functools.cache
+def _table_kernel() -> Callable:
+    from georef import kernels
+
+    return kernels.load("table").parse_block
+
+
+def _parse_clean(layout: _Layout, kinds: dict[int, Kind]) -> tuple[dict[int, np.ndarray], int] | None:
+    """The wanted columns (file column -> kind) of a clean file and its number of rows: by the compiled reader
+    (:mod:`georef.io.table_kernel`), else by numpy's ``loadtxt``; None when the file is not clean, and the caller
+    reads it with pandas, which gives every message. Hex columns come converted (uint64)."""
+    if not kinds:
+        return None
+    return _parse_compiled(layout, kinds) or _parse_loadtxt(layout, kinds)
+
+
+def _parse_compiled(layout: _Layout, kinds: dict[int, Kind]) -> tuple[dict[int, np.ndarray], int] | None:
+    """:func:`_parse_clean` by the compiled reader, in blocks of whole lines; None when a block holds a byte
+    outside printable ASCII (tab and line ends aside) or a double quote, or the kernel stops at anything (see
+    :mod:`georef.io.table_kernel`: a line with another number of fields, a blank line, a number outside its exact
+    fast path, ...)."""
+    wanted = sorted(kinds)
+    slot = np.full(len(layout.header), -1, dtype=np.int64)
+    slot[wanted] = np.arange(len(wanted))
+    kind = np.array([_KERNEL_KINDS[kinds[i]] for i in wanted], dtype=np.int64)
+    sep = -1 if layout.dialect.separator is None else ord(layout.dialect.separator)
+    parse = _table_kernel()
+    layout.handle.seek(layout.data_start)
+    numbers, texts = [], {i: [] for i in wanted if kinds[i] == "str"}
+    carry = b""
+    while True:
+        block = layout.handle.read(_KERNEL_BLOCK)
+        data = carry + block
+        if block:
+            cut = data.rfind(b"\n") + 1
+            if cut == 0:
+                carry = data
+                continue
+            data, carry = data[:cut], data[cut:]
+        elif not data:
+            break
+        if data.translate(None, _CLEAN_BYTES):
+            return None
+        lines = data.count(b"\n") + (0 if data.endswith(b"\n") else 1)
+        values, starts, ends, status = parse(np.frombuffer(bytearray(data), dtype=np.uint8), len(data), sep,
+                                             len(layout.header), slot, kind, lines)
+        if status[0] != 0:
+            return None
+        numbers.append(values)
+        for i, cells in texts.items():
+            k = int(slot[i])
+            cells += [data[a:b].decode("ascii") for a, b in zip(starts[:, k].tolist(), ends[:, k].tolist(),
+                                                                    strict=True)]
+        if not block:
+            break
+    if not numbers:
+        return None
+    table = np.concatenate(numbers) if len(numbers) > 1 else numbers[0]
+    frame: dict[int, np.ndarray] = {}
+    for k, i in enumerate(wanted):
+        if kinds[i] == "str":
+            frame[i] = np.asarray(texts[i], dtype=str)
+        elif kinds[i] == "hex":
+            frame[i] = table[:, k].astype(np.uint64)
+        else:
+            frame[i] = np.ascontiguousarray(table[:, k])
+    return frame, len(table)
+
+
+def _parse_loadtxt(layout: _Layout, kinds: dict[int, Kind]) -> tuple[dict[int, np.ndarray], int] | None:
+    """:func:`_parse_clean` by numpy's ``loadtxt`` through a :class:`_Scanner`; None when a line has another
+    number of fields than the header or is blank, a byte is outside printable ASCII (tab and line ends aside)
+    or a double quote, numpy refuses a cell, a number is not finite, or a text cell has leading blanks (pandas
+    drops them) or fills its width."""
+    usecols = sorted(kinds)
+    width = {"hex": _HEX_WIDTH, "str": _STR_WIDTH}
+    dtype = [(str(i), np.float64 if kinds[i] in ("float", "int") else f"U{width[kinds[i]]}") for i in usecols]
+    layout.handle.seek(layout.data_start)
+    scanner = _Scanner(layout.handle, layout.path, layout.dialect.separator, layout.header, layout.data_start,
+                       check_clean=True)
+    text = io.TextIOWrapper(io.BufferedReader(scanner, _BLOCK), encoding="utf-8", newline=None)
+    try:
+        data = np.loadtxt(text, dtype=dtype, delimiter=layout.dialect.separator, comments=None, usecols=usecols,
+                          ndmin=1, quotechar=None)
+    except (ValueError, _AbortError, UnicodeDecodeError, OverflowError):
+        return None
+    if (not scanner.finished or scanner.problem is not None or scanner.short or scanner.blank
+            or not scanner.clean or len(data) != scanner.n_lines):
+        return None
+    frame = {}
+    for i in usecols:
+        column = np.array(data[str(i)])
+        if kinds[i] in ("float", "int"):
+            if not np.all(np.isfinite(column)):
+                return None
+        elif len(column) and (np.char.str_len(column).max() >= width[kinds[i]]
+                              or np.any(np.char.startswith(column, " ") | np.char.startswith(column, "\t"))):
+            return None
+        frame[i] = column
+    return frame, scanner.n_lines
+
+
+def _is_missing(values: np.ndarray) -> np.ndarray:
+    """Missing cells of a text column: none in numpy's text (``"U"``), None or NaN in pandas' objects."""
+    if values.dtype.kind == "U":
+        return np.zeros(len(values), dtype=bool)
+    import pandas as pd  # an object column comes from pandas: already imported
+
+    return np.asarray(pd.isna(values), dtype=bool)
+
+
 def _read_body(layout: _Layout, wanted: dict[str, Kind], short_rows: str) -> Table:
     path, header, index = layout.path, layout.header, layout.index
     sep = layout.dialect.separator
     present = [name for name in wanted if name in index]
     usecols = sorted(index[name] for name in present)
-    dtypes = {index[name]: (np.float64 if wanted[name] in ("float", "int") else str) for name in present}
-    try:
-        frame, scanner = _parse(layout, usecols, dtypes)
-    except _AbortError as stop:
-        raise stop.problem from None
-    except (ValueError, pd.errors.ParserError, UnicodeDecodeError, OverflowError) as exc:
-        try:
-            located = _locate_bad_cell(layout, wanted, present)
-        except (ValueError, pd.errors.ParserError):
-            located = None
-        if located is not None:
-            raise located from None
-        raise InputError(path, None, None, f"cannot parse the table: {excerpt(str(exc), 200)}") from None
-    if not scanner.finished:  # pandas stopped before the end (cannot happen with the C parser; be sure)
-        while scanner.read(_BLOCK):
-            pass
-    if len(frame) != scanner.n_lines:
-        raise RuntimeError(f"{path}: pandas read {len(frame)} rows, the line scan found {scanner.n_lines}")
+    clean = _parse_clean(layout, {index[name]: wanted[name] for name in present})
+    blank_lines: list[int] = []
+    short_lines: list[tuple[int, int, int]] = []
+    if clean is not None:
+        frame, n_rows = clean  # no blank or short line, by definition
+    else:
+        frame, scanner = _parse_with_pandas(layout, wanted, present, usecols)
+        n_rows = len(frame)
+        if n_rows != scanner.n_lines:
+            raise RuntimeError(f"{path}: pandas read {n_rows} rows, the line scan found {scanner.n_lines}")
+        blank_lines, short_lines = scanner.blank, scanner.short
 
-    lines = np.arange(2, len(frame) + 2)
-    keep = np.ones(len(frame), dtype=bool)
+    lines = np.arange(2, n_rows + 2)
+    keep = np.ones(n_rows, dtype=bool)
     notices: list[InputNotice] = []
-    blank = np.asarray(scanner.blank, dtype=int)
+    blank = np.asarray(blank_lines, dtype=int)
     if len(blank):
         keep[blank - 2] = False
     if not keep.any():
@@ -854,9 +990,9 @@ def _read_body(layout: _Layout, wanted: dict[str, Kind], short_rows: str) -> Tab
         if len(interior):
             notices.append(InputNotice(path, interior.tolist(), None, "blank lines skipped"))
 
-    incomplete = np.zeros(len(frame), dtype=bool)
-    n_fields = np.zeros(len(frame), dtype=int)
-    for line, fields, start in scanner.short:
+    incomplete = np.zeros(n_rows, dtype=bool)
+    n_fields = np.zeros(n_rows, dtype=int)
+    for line, fields, start in short_lines:
         text, _ = _line_at(layout.handle, start)
         other = [s for s in (*SEPARATORS, None) if s != sep and len(_split(text, s)) == len(header)]
         missing_column = _field_name(header, fields)
@@ -879,28 +1015,32 @@ def _read_body(layout: _Layout, wanted: dict[str, Kind], short_rows: str) -> Tab
 
     columns: dict[str, np.ndarray] = {}
     rows = np.flatnonzero(keep)
-    every_row = len(rows) == len(frame)
+    every_row = len(rows) == n_rows
     complete = ~incomplete[rows]
     any_incomplete = not complete.all()
     for name in present:
         kind = wanted[name]
         spelled = header[index[name]]
-        values = frame[index[name]].to_numpy()
+        values = np.asarray(frame[index[name]])
         if not every_row:
             values = values[rows]
         # every column that is read is used: an empty cell is never silently a NaN (cut-short rows excepted)
         if kind in ("float", "int"):
             values = np.asarray(values, dtype=np.float64)
             empty = np.isnan(values)
+        elif values.dtype == np.uint64:  # hex, converted by the compiled reader
+            empty = np.zeros(len(values), dtype=bool)
         else:
-            empty = pd.isna(values) | (values == "")
+            empty = _is_missing(values) | (values == "")
         if any_incomplete:
             empty &= complete
         if np.any(empty):
             row = int(np.argmax(empty))
             raise InputError(path, int(lines[rows[row]]), spelled, "empty cell")
-        if kind == "hex":
-            parsed, bad = parse_hex(np.where(pd.isna(values), "0", values))
+        if kind == "hex" and values.dtype == np.uint64:
+            columns[name] = values
+        elif kind == "hex":
+            parsed, bad = parse_hex(np.where(_is_missing(values), "0", values))
             if bad.any():
                 row = int(np.argmax(bad))
                 raise InputError(path, int(lines[rows[row]]), spelled, _cell_problem(str(values[row]), kind, sep))
@@ -925,19 +1065,45 @@ def _read_body(layout: _Layout, wanted: dict[str, Kind], short_rows: str) -> Tab
                     raise InputError(path, int(lines[rows[row]]), spelled, f"{values[row]!r} is not a whole number")
             columns[name] = values
         else:
-            text = pd.Series(values, dtype=object)
-            bad = text.str.contains(_BAD_TEXT, regex=True, na=False).to_numpy()
-            if bad.any():
-                row = int(np.argmax(bad))
-                raise InputError(path, int(lines[rows[row]]), spelled, _str_problem(str(values[row])))
-            columns[name] = np.asarray(text.fillna("").to_numpy(), dtype=str)
+            cells = np.where(_is_missing(values), "", values).tolist()
+            bad = [row for row, cell in enumerate(cells) if _BAD_TEXT.search(cell)]
+            if bad:
+                raise InputError(path, int(lines[rows[bad[0]]]), spelled, _str_problem(str(values[bad[0]])))
+            columns[name] = np.asarray(cells, dtype=str)
     return Table(path=path, header=header, columns=columns, lines=lines[rows], notices=notices,
                  dialect=layout.dialect, names={name: header[index[name]] for name in present},
                  incomplete=incomplete[rows], fields=n_fields[rows])
 
 
+def _parse_with_pandas(layout: _Layout, wanted: dict[str, Kind], present: list[str],
+                       usecols: list[int]) -> tuple[pd.DataFrame, _Scanner]:
+    """The wanted columns by pandas' C parser (:func:`_parse`), every problem raised as an :class:`InputError`
+    naming its line and column."""
+    import pandas as pd
+
+    dtypes = {layout.index[name]: (np.float64 if wanted[name] in ("float", "int") else str) for name in present}
+    try:
+        frame, scanner = _parse(layout, usecols, dtypes)
+    except _AbortError as stop:
+        raise stop.problem from None
+    except (ValueError, pd.errors.ParserError, UnicodeDecodeError, OverflowError) as exc:
+        try:
+            located = _locate_bad_cell(layout, wanted, present)
+        except (ValueError, pd.errors.ParserError):
+            located = None
+        if located is not None:
+            raise located from None
+        raise InputError(layout.path, None, None, f"cannot parse the table: {excerpt(str(exc), 200)}") from None
+    if not scanner.finished:  # pandas stopped before the end (cannot happen with the C parser; be sure)
+        while scanner.read(_BLOCK):
+            pass
+    return frame, scanner
+
+
 def _text_chunks(layout: _Layout, usecols: list[int]) -> Iterator[pd.DataFrame]:
     """The wanted columns as text, 100,000 rows at a time (every column when no line is complete)."""
+    import pandas as pd
+
     layout.handle.seek(layout.data_start)
     yielded = False
     try:
