@@ -905,16 +905,14 @@ def _parse_compiled(layout: _Layout, kinds: dict[int, Kind]) -> tuple[dict[int, 
             break
     if not numbers:
         return None
-    table = np.concatenate(numbers) if len(numbers) > 1 else numbers[0]
     frame: dict[int, np.ndarray] = {}
-    for k, i in enumerate(wanted):
+    for k, i in enumerate(wanted):  # column by column from the blocks: one copy of the numbers at a time
         if kinds[i] == "str":
             frame[i] = np.asarray(texts[i], dtype=str)
-        elif kinds[i] == "hex":
-            frame[i] = table[:, k].astype(np.uint64)
         else:
-            frame[i] = np.ascontiguousarray(table[:, k])
-    return frame, len(table)
+            column = np.concatenate([block[:, k] for block in numbers])
+            frame[i] = column.astype(np.uint64) if kinds[i] == "hex" else column
+    return frame, sum(len(block) for block in numbers)
 
 
 def _parse_loadtxt(layout: _Layout, kinds: dict[int, Kind]) -> tuple[dict[int, np.ndarray], int] | None:

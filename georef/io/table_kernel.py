@@ -124,13 +124,15 @@ def parse_block(buf: np.ndarray, n: int, sep: int, n_fields: int, slot: np.ndarr
     ``sep``: the separator byte, -1 for runs of blanks (space, tab); ``n_fields``: fields per line; ``slot``
     (``n_fields``,): the output column of each field, -1 where it is not wanted; ``kind`` (outputs,): FLOAT,
     HEX or TEXT per output column. Returns ``values`` (lines, outputs) [the numbers; hex as float64], ``starts``
-    and ``ends`` (lines, outputs) [byte ranges of the text cells in ``buf``], ``status`` (2,): CLEAN or why the
+    and ``ends`` (lines, outputs; no lines when no column is TEXT) [byte ranges of the text cells in ``buf``],
+    ``status`` (2,): CLEAN or why the
     block stopped, and the line it stopped at (0-based). One pass: a wanted number is converted as its bytes are
     read, and must then end at a field's end."""
     n_out = len(kind)
     values = np.zeros((n_lines, n_out))
-    starts = np.zeros((n_lines, n_out), dtype=np.int64)
-    ends = np.zeros((n_lines, n_out), dtype=np.int64)
+    text_lines = n_lines if np.any(kind == TEXT) else 0  # no text column: no byte ranges to hold
+    starts = np.zeros((text_lines, n_out), dtype=np.int64)
+    ends = np.zeros((text_lines, n_out), dtype=np.int64)
     status = np.zeros(2, dtype=np.int64)
     i = 0
     row = 0
