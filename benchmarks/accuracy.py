@@ -2,7 +2,8 @@
 
 Prints per method the mean and worst RMS figures, the GNSS-interpolation baseline, the yaw-offset error of
 the recovery, and the share of frames whose error lies inside 2 sigma with rms(error/sigma) (NEES-like).
-Usage: python benchmarks/accuracy.py [--seeds 1 2 ...] [--methods axis ekf rts] [--minutes 3]
+Usage: python benchmarks/accuracy.py [--seeds 1 2 ...] [--methods axis ekf rts graph] [--minutes 3]
+With rts and graph among the methods it also prints the graph / rts horizontal RMS ratio per flight.
 """
 
 from __future__ import annotations
@@ -74,6 +75,14 @@ def main() -> None:
         for figure in figures[:5]:
             print(f"{figure}: rts < ekf on {(wide[figure]['rts'] < wide[figure]['ekf']).sum()} flights, "
                   f"ekf < axis on {(wide[figure]['ekf'] < wide[figure]['axis']).sum()} of {len(wide)}")
+    if {"rts", "graph"} <= set(args.methods):
+        wide = table.pivot(index="seed", columns="method")["horizontal_rms_m"]
+        ratio = wide["graph"] / wide["rts"]
+        print("graph / rts horizontal RMS per flight: " + " ".join(f"{s}: {r:.3f}" for s, r in ratio.items()))
+        pooled = np.sqrt((wide["graph"] ** 2).mean() / (wide["rts"] ** 2).mean())
+        print(f"graph / rts: mean {ratio.mean():.3f} (standard error {ratio.std(ddof=1) / np.sqrt(len(ratio)):.3f}), "
+              f"worst {ratio.max():.3f}, {(ratio <= 1.05).sum()} of {len(ratio)} within + 5 %; over all frames of all "
+              f"flights {pooled:.3f}")
 
 
 if __name__ == "__main__":

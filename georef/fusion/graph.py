@@ -15,12 +15,12 @@
 * A ground vehicle (when the EKF + RTS applied the non-holonomic constraint): zero lateral and vertical body
   velocity at every keyframe with the EKF's sigmas (:func:`_add_ground_vehicle`), linearised at the RTS
   solution, then once more at the optimum.
-* The POS unit's own attitude (``cfg.unit.aiding`` and ROLL/PITCH/YAW in the log), the same model as the EKF:
-  a variable ``U = (e_r, e_p, d, d_dot)`` [rad, rad, rad, rad/s] per keyframe; a factor
-  ``(roll + e_r, pitch + e_p, yaw - d) - (roll_u, pitch_u, yaw_u)`` with white sigma ``unit_angle_noise``
+* The POS unit's own attitude (``cfg.unit.aiding`` and ROLL/PITCH/YAW in the log), the same model as the EKF
+  with the EKF's fitted values: a variable ``U = (e_r, e_p, d, d_dot)`` [rad, rad, rad, rad/s] per keyframe; a
+  factor ``(roll + e_r, pitch + e_p, yaw - d) - (roll_u, pitch_u, yaw_u)`` with the fitted white sigmas
   (linearised at the RTS solution and kept as a ``LinearContainerFactor``, evaluated in C++); between
   keyframes a linear factor for the Gauss-Markov level errors (``e_k = exp(-dt/tau) e_k-1``, variance
-  ``sigma^2 (1 - exp(-2 dt/tau))``) and the yaw origin with its random-walk drift (``unit_drift_change``).
+  ``sigma^2 (1 - exp(-2 dt/tau))``) and the yaw origin with its random-walk drift (the fitted density).
 * Initial values from the EKF + RTS solution; batch Levenberg-Marquardt, or ISAM2 fed one keyframe at a time
   (``graph_solver = "isam2"``). Per-keyframe covariances from a QR elimination (:class:`_QrMarginals`); IMU-rate
   states are the RTS trajectory corrected by the graph-minus-RTS difference interpolated between keyframes.
@@ -57,7 +57,7 @@ from georef.frames.rotations import (
     wrap_pi,
 )
 from georef.fusion.increments import compensated_rates
-from georef.fusion.ins import InsInputs, _fix_sigmas, _gap_scale, inputs_from_pos, solve_ins, unit_drift_psd
+from georef.fusion.ins import InsInputs, _fix_sigmas, _gap_scale, inputs_from_pos, solve_ins
 from georef.fusion.ins_layout import NHC_GATE, NHC_LEVER
 from georef.fusion.solution import GraphCalibration, GraphInfo, NavSolution, ScaleFactors
 
@@ -193,7 +193,7 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings | ProcessingConfig,
             _bias_factor(gtsam, B(k - 1), B(k), _bias_drive(noise, scale[1]) * (t[b] - t[a]),
                          rate_change if scale_sigma > 0 else None, values)])
     if cfg.unit.aiding and inputs.unit_rpy is not None:
-        _add_unit_attitude(gtsam, U, X, inputs.unit_rpy, rts, t, key_rows, C_n_t_rows, cfg, values, factors_at)
+        _add_unit_attitude(gtsam, U, X, inputs.unit_rpy, rts, t, key_rows, C_n_t_rows, noise, values, factors_at)
     nhc_sigma = _add_ground_vehicle(gtsam, X, V, rts, gyro, key_rows, values, factors_at)
     # the calibration variables (the GNSS lever arm [m, body] and the GNSS time offset [s]: each fix was measured
     # that long before its time tag, the EKF's ``gnss_latency``) with their prior; GNSS antenna fixes with the
@@ -611,11 +611,11 @@ def _fill_gaps(t: np.ndarray, key_rows: np.ndarray, max_gap: float) -> np.ndarra
     return np.unique(np.concatenate([key_rows, *extra])) if extra else key_rows
 
 
-def _unit_factor(gtsam: ModuleType, key_x: int, key_u: int, error: np.ndarray, H_rot: np.ndarray, sigma: float,
+def _unit_factor(gtsam: ModuleType, key_x: int, key_u: int, error: np.ndarray, H_rot: np.ndarray, sigma: np.ndarray,
                  at: gtsam.Values) -> gtsam.LinearContainerFactor:
     """The unit's roll, pitch, yaw [rad] at one keyframe: ``roll_u = roll + e_r``, ``pitch_u = pitch + e_p``,
     ``yaw_u = yaw - d``, with (roll, pitch, yaw) of ``C_b_n = C_t_n R`` and ``U = (e_r, e_p, d, d_dot)``,
-    white noise ``sigma`` [rad].
+    white noise ``sigma`` (3,) [rad] on roll, pitch, yaw.
 
     Linearised once, at the initial values ``at`` (of which the factor keeps its own two), and kept as a
     ``LinearContainerFactor``: GTSAM evaluates it in C++ at every iteration (a Python ``CustomFactor`` made each
@@ -627,7 +627,8 @@ def _unit_factor(gtsam: ModuleType, key_x: int, key_u: int, error: np.ndarray, H
     :func:`_unit_linearisation`.
     """
     H_x = np.hstack([H_rot, np.zeros((3, 3))])
-    linear = gtsam.JacobianFactor(key_x, H_x / sigma, key_u, UNIT_H / sigma, -error / sigma,
+    weight = 1.0 / sigma[:, None]
+    linear = gtsam.JacobianFactor(key_x, H_x * weight, key_u, UNIT_H * weight, -error / sigma,
                                   gtsam.noiseModel.Unit.Create(3))
     return gtsam.LinearContainerFactor(linear, at)
 
@@ -722,12 +723,15 @@ def _linear(gtsam: ModuleType, keys: list[int], blocks: list[np.ndarray], b: np.
 
 
 def _add_unit_attitude(gtsam: ModuleType, U: Symbol, X: Symbol, unit_rpy: np.ndarray, rts: NavSolution, t: np.ndarray,
-                       key_rows: np.ndarray, C_n_t_rows: np.ndarray, cfg: GraphSettings, values: gtsam.Values,
+                       key_rows: np.ndarray, C_n_t_rows: np.ndarray, noise: NoiseModel, values: gtsam.Values,
                        factors_at: dict[int, list]) -> None:
-    """Unit-attitude variables ``U(k) = (e_r, e_p, d, d_dot)`` [rad, rad/s] and their factors (see the module)."""
-    level = np.radians(cfg.unit.level_sigma)
-    tau = cfg.unit.level_time
-    q_drift = unit_drift_psd(cfg.unit)  # rad^2/s^3, as the EKF
+    """Unit-attitude variables ``U(k) = (e_r, e_p, d, d_dot)`` [rad, rad/s] and their factors (see the module),
+    with the unit's error model the EKF + RTS fitted to this flight (``noise``: the level errors' Gauss-Markov
+    drive and correlation time, the yaw origin's drift density, the white angle variances), not the configured
+    one: the configuration is the EM's prior, and the data may say otherwise."""
+    tau = noise.tau_unit
+    level = float(np.sqrt(noise.q_unit_level * tau / 2.0))  # rad, the stationary sigma of q = 2 sigma^2 / tau
+    q_drift = noise.q_unit_drift  # rad^2/s^3
     z = unit_rpy[key_rows]
     e_level = z[:, :2] - np.stack([rts.roll[key_rows], rts.pitch[key_rows]], -1)
     d = np.unwrap(wrap_pi(rts.yaw[key_rows] - z[:, 2]))
@@ -744,7 +748,7 @@ def _add_unit_attitude(gtsam: ModuleType, U: Symbol, X: Symbol, unit_rpy: np.nda
         zero.insert(U(k), np.zeros(4))
     R, _, _ = _keyframe_states(values, np.arange(len(key_rows)))
     errors, H_rot = _unit_linearisation(np.swapaxes(C_n_t_rows[key_rows], -1, -2), R, u_values, z)
-    sigma = np.radians(cfg.unit.angle_noise)
+    sigma = np.sqrt([noise.r_unit_level, noise.r_unit_level, noise.r_unit_yaw])
     for k in range(len(key_rows)):
         factors_at.setdefault(k, []).append(_unit_factor(gtsam, X(k), U(k), errors[k], H_rot[k], sigma, values))
     # priors at the first keyframe: the level errors' stationary Gauss-Markov sigma; the yaw origin is free (pi,
