@@ -460,6 +460,21 @@ def _inliers(values: gtsam.Values, fixes: _Fixes, lever: np.ndarray, offset: flo
     return np.sum((residual / fixes.sigma) ** 2, axis=1) <= threshold
 
 
+#: Levenberg-Marquardt stops when an iteration lowers the cost by less than this fraction of it (GTSAM's default
+#: 1e-5). The graph starts from the RTS solution, close to its optimum, where the Gauss-Newton steps converge
+#: quadratically: measured against the default, positions moved by at most 0.02 mm on the 15-minute helicopter
+#: flight (robust pass 2 iterations instead of 3, refit 1 instead of 2) and 1.5 mm on KITTI (0.2 mm RMS; robust
+#: pass 3 instead of 5; outage RMS 0.8907 against 0.8905 m), for 0.15-0.6 s less.
+LM_RELATIVE_TOLERANCE = 1e-3
+
+
+def _lm_params(gtsam: ModuleType) -> gtsam.LevenbergMarquardtParams:
+    """GTSAM's Levenberg-Marquardt defaults but for the stopping tolerance :data:`LM_RELATIVE_TOLERANCE`."""
+    params = gtsam.LevenbergMarquardtParams()
+    params.setRelativeErrorTol(LM_RELATIVE_TOLERANCE)
+    return params
+
+
 def _optimise(gtsam: ModuleType, cfg: GraphSettings, factors_at: dict[int, list], extra: dict[int, list],
               values: gtsam.Values, n_keys: int) -> gtsam.Values:
     """Optimise the graph of ``factors_at`` and ``extra`` (factors by keyframe) from ``values``: batch
@@ -469,7 +484,7 @@ def _optimise(gtsam: ModuleType, cfg: GraphSettings, factors_at: dict[int, list]
         for k in range(n_keys):
             for factor in factors_at.get(k, []) + extra.get(k, []):
                 graph.add(factor)
-        return gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams()).optimize()
+        return gtsam.LevenbergMarquardtOptimizer(graph, values, _lm_params(gtsam)).optimize()
     from gtsam.symbol_shorthand import B, U, V, X
 
     params = gtsam.ISAM2Params()
@@ -695,7 +710,7 @@ def _relinearise_ground_vehicle(gtsam: ModuleType, X: Symbol, V: Symbol, graph: 
             continue
         k = gtsam.Symbol(keys[0]).index()
         graph.replace(index, _nhc_factor(gtsam, X(k), V(k), result.atPose3(X(k)), result.atVector(V(k)), sigma[k]))
-    return gtsam.LevenbergMarquardtOptimizer(graph, result, gtsam.LevenbergMarquardtParams()).optimize()
+    return gtsam.LevenbergMarquardtOptimizer(graph, result, _lm_params(gtsam)).optimize()
 
 
 def _unit_linearisation(C_t_n: np.ndarray, R: np.ndarray, u: np.ndarray,
