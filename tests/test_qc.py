@@ -307,3 +307,46 @@ def test_frames_without_a_valid_sigma_fail(clean):
     table.loc[5, "flag"] = FLAG_NO_SIGMA
     check = _by_name(assess(clean.nav, table, clean.config))["frames"]
     assert check.status == "fail" and check.message.startswith(f"1 of {len(table)} frames have no valid sigma")
+
+
+def _graph_nav(own: np.ndarray, own_sigma: np.ndarray, prior: np.ndarray, prior_sigma: np.ndarray,
+               ekf: np.ndarray, ekf_sigma: np.ndarray):
+    """A stand-in for a graph solution: its calibration posterior made from a prior (lever arm x, y, z [m] and a
+    time offset of 0 +- 2 ms) and a flight's data-only estimate, and the EKF's calibration pass."""
+    from types import SimpleNamespace
+
+    from georef.fusion.solution import GraphCalibration
+
+    prior_mean = np.append(prior, 0.0)
+    prior_cov = np.diag(np.append(prior_sigma, 0.002) ** 2)
+    data_info = np.diag(1.0 / np.append(own_sigma, 0.002) ** 2)
+    covariance = np.linalg.inv(np.linalg.inv(prior_cov) + data_info)
+    mean = covariance @ (np.linalg.solve(prior_cov, prior_mean) + data_info @ np.append(own, 0.0))
+    calibration = GraphCalibration(mean=mean, covariance=covariance, prior_mean=prior_mean, prior_covariance=prior_cov)
+    ekf_pass = Calibration(lever_arm=ekf, lever_arm_sigma=ekf_sigma, latency=0.0, latency_sigma=0.01)
+    return SimpleNamespace(graph_info=SimpleNamespace(calibration=calibration),
+                           diagnostics=SimpleNamespace(calibration=ekf_pass))
+
+
+def test_graph_lever_arm_check_is_contested_by_an_agreeing_ekf():
+    """The graph's data put the antenna elsewhere than configured: a failure naming the lever arm, unless the EKF's
+    calibration pass, which sees the same data and resolves the axis about as well, agrees with the configuration;
+    then the data do not single out the configuration and the check warns, naming both (a multicopter with a
+    consumer IMU, measured: graph 1.69 +- 0.54 m, EKF -0.51 +- 0.52 m, configured and true 0.02 m)."""
+    from georef.qc import check_graph_lever_arm
+
+    prior, prior_sigma = np.array([0.02, 0.0, -0.12]), np.full(3, 0.05)
+    own, own_sigma = np.array([1.69, 0.0, -0.12]), np.array([0.54, 0.5, 1.0])
+    contested = check_graph_lever_arm(_graph_nav(own, own_sigma, prior, prior_sigma, np.array([-0.51, 0.0, -0.12]),
+                                                 np.array([0.52, 0.5, 0.8])))
+    assert contested.status == "warn"
+    assert "1.69 +- 0.54" in contested.message and "-0.51 +- 0.52" in contested.message
+    # a clearer error (2.5 m), which the EKF sees too: the configuration is at fault
+    own = np.array([2.5, 0.0, -0.12])
+    agreed = check_graph_lever_arm(_graph_nav(own, own_sigma, prior, prior_sigma, np.array([2.3, 0.0, -0.12]),
+                                              np.array([0.52, 0.5, 0.8])))
+    assert agreed.status == "fail" and "typo" in agreed.message
+    # the EKF cannot resolve the axis (sigma 3 m against the graph's 0.54): it contests nothing
+    blind = check_graph_lever_arm(_graph_nav(own, own_sigma, prior, prior_sigma, np.array([0.0, 0.0, -0.12]),
+                                             np.array([3.0, 0.5, 0.8])))
+    assert blind.status == "fail"
