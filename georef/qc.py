@@ -337,27 +337,27 @@ def check_graph_lever_arm(nav: NavSolution) -> Check | None:
     calibration = None if diagnostics is None else diagnostics.calibration
     off = _lever_arm_differences(own, own_sigma, prior, prior_sigma, given)
     contested: list[int] = []
-    if off and calibration is not None:
+    doubt = ""
+    if calibration is not None:
+        ekf, ekf_sigma = np.asarray(calibration.lever_arm, float), np.asarray(calibration.lever_arm_sigma, float)
         # the EKF's calibration pass sees the same data: where it resolves the axis as well as the graph (sigma at
         # most CONTEST_SIGMA_RATIO times the graph's) and agrees with the configuration, the data do not single
         # out the configuration, and the graph's solution is as likely at fault (a multicopter with a consumer
         # IMU: the graph's data put the antenna 1.69 +- 0.54 m forward, the EKF -0.51 +- 0.52 m, the truth 0.02 m)
-        ekf, ekf_sigma = np.asarray(calibration.lever_arm, float), np.asarray(calibration.lever_arm_sigma, float)
         ekf_off = _lever_arm_differences(ekf, ekf_sigma, prior, prior_sigma, np.ones(3, bool))
         contested = [k for k in off if k not in ekf_off and ekf_sigma[k] <= CONTEST_SIGMA_RATIO * own_sigma[k]]
+        if contested:
+            doubt = ("; ".join(f"on {AXES[k]} the graph's data put the antenna at {own[k]:.2f} +- "
+                               f"{own_sigma[k]:.2f} m but the EKF's calibration pass, on the same data, at "
+                               f"{ekf[k]:.2f} +- {ekf_sigma[k]:.2f} m, in agreement with the configured "
+                               f"{prior[k]:.2f} m"
+                               for k in contested)
+                     + ": the graph's own solution is as likely at fault as the lever arm (see 'graph vs rts'); "
+                     "compare the frames with --method rts")
     problems = [f"GNSS lever arm {AXES[k]} ({AXIS_WORDS[AXES[k]]}): the flight's data put the antenna at "
                 f"{own[k]:.2f} +- {own_sigma[k]:.2f} m, the configuration says {prior[k]:.2f} +- {prior_sigma[k]:.2f} m"
                 for k in off if k not in contested]
     graph_text = f"the graph applied {_lever_arm_text(applied, applied_sigma)} m (x, y, z)"
-    doubt = ""
-    if contested:
-        assert calibration is not None
-        doubt = ("; ".join(f"on {AXES[k]} the graph's data put the antenna at {own[k]:.2f} +- {own_sigma[k]:.2f} m "
-                           f"but the EKF's calibration pass, on the same data, at {calibration.lever_arm[k]:.2f} +- "
-                           f"{calibration.lever_arm_sigma[k]:.2f} m, in agreement with the configured "
-                           f"{prior[k]:.2f} m" for k in contested)
-                 + ": the graph's own solution is as likely at fault as the lever arm (see 'graph vs rts'); compare "
-                 "the frames with --method rts")
     if problems:
         return Check("lever arm", FAIL, "; ".join(problems) + f"; {graph_text}, held near the configuration by its "
                      "prior, so the frames carry the configured lever arm's error. " + LEVER_ADVICE
@@ -372,7 +372,6 @@ def check_graph_lever_arm(nav: NavSolution) -> Check | None:
         text = f"no GNSS lever arm given: {graph_text.replace('applied', 'estimated and applied')}"
     if calibration is None:
         return Check("lever arm", PASS, text)
-    ekf, ekf_sigma = np.asarray(calibration.lever_arm, float), np.asarray(calibration.lever_arm_sigma, float)
     ekf_text = f"the EKF's calibration pass puts it at {_lever_arm_text(ekf, ekf_sigma)} m"
     apart = _lever_arm_differences(ekf, ekf_sigma, applied, applied_sigma, np.ones(3, bool))
     if apart:
