@@ -20,15 +20,19 @@ The rules (``docs/formats.md``, "Reading text tables"):
   digits of other scripts, decimal commas and quoted numbers are errors naming line and column. Messages
   quote at most :data:`~georef.io.errors.EXCERPT_CHARS` characters of a cell.
 
-The file is streamed once, in 256 KiB blocks, through a checker (:class:`_Scanner`) on its way to numpy's
-``loadtxt``, which converts only the wanted columns; no copy of the whole file is held. That is the path of a
-clean file: every line with the header's number of fields, printable ASCII, no quote, every number finite.
-Anything else (or any cell ``loadtxt`` refuses) is read again by pandas' C parser, whose results and messages
-define the rules; when pandas refuses a cell, a second, chunked pass finds its line and column. Both parsers
-round correctly (numpy through Python's ``PyOS_string_to_double``, pandas 3 through fast_float), so a clean
-file gives the same numbers either way (``tests/test_table.py`` checks it). The first path exists for
-speed: importing pandas costs 0.35-0.4 s, and ``georef process`` needs it for nothing else (``docs/method-ins.md``,
-section 10).
+Three readers, which must give the same numbers to the bit (``tests/test_table_paths.py``):
+
+* a **clean** file (every line with the header's number of fields, printable ASCII, no quote, every number
+  finite and within the exact fast path of at most 15 significant digits) is read by the compiled reader
+  (:mod:`georef.io.table_kernel`) in 8 MiB blocks of whole lines;
+* a clean file it declines (a number of 16 digits or more, say), up to 16 MiB, by numpy's ``loadtxt``,
+  streamed in 256 KiB blocks through a checker (:class:`_Scanner`);
+* anything else by pandas' C parser behind the same checker, whose results and messages define the rules;
+  when pandas refuses a cell, a second, chunked pass finds its line and column.
+
+All three round correctly (Clinger's fast path; numpy through ``PyOS_string_to_double``; pandas 3 through
+fast_float). The first two exist for speed: importing pandas costs 0.35-0.4 s, and ``georef process`` needs
+it for nothing else (``docs/formats.md``, "Three readers"; ``docs/method-ins.md``, section 10).
 """
 
 from __future__ import annotations
