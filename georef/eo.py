@@ -22,7 +22,7 @@ from georef.exposure import ExposureStates
 from georef.frames import C_e_n, dcm_to_euler, ecef_to_geodetic, skew, wrap_360
 from georef.frames.mounting import camera_attitude, lever_arm_ecef, lever_arm_offset
 from georef.frames.rotations import euler_error_jacobian
-from georef.io.camera import Exposures
+from georef.io.camera import Exposures, repeated_frames
 from georef.io.image_names import ImageNames
 
 if TYPE_CHECKING:
@@ -66,8 +66,7 @@ def _flags(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, outag
             flags[i].append(f"{FLAG_AFTER_LAST_FIX} ({exposures.time[i] - last:.0f} s of inertial only)")
         for i in np.flatnonzero(states.inside & (exposures.time < first - outage_min_s)):
             flags[i].append(f"{FLAG_BEFORE_FIRST_FIX} ({first - exposures.time[i]:.0f} s of inertial only)")
-    _, inverse, counts = np.unique(exposures.frame, return_inverse=True, return_counts=True)
-    for i in np.flatnonzero(counts[inverse] > 1):
+    for i in np.flatnonzero(repeated_frames(exposures.frame)):
         flags[i].append(FLAG_DUPLICATE)
     for i in np.flatnonzero(np.diff(exposures.time) < 0) + 1:
         flags[i].append(FLAG_ORDER)

@@ -272,16 +272,22 @@ def test_a_killed_writers_temporary_file_is_removed_by_the_next_run(tmp_path):
     writer.kill()  # SIGKILL: no handler runs
     writer.wait(timeout=30)
     left = _temps(tmp_path)
-    assert len(left) == 1 and left[0].read_text() == "half a tab"
-    # young: it might be a live writer's, so it stays
+    assert len(left) == 1 and left[0].read_text() == "half a tab" and f".{writer.pid}." in left[0].name
+    # young, but its writer's process is gone: the next run removes it
     with atomic_write(target) as handle:
         handle.write("second run\n")
-    assert _temps(tmp_path) == left
-    old = time.time() - atomic.STALE_AFTER_S - 60
-    os.utime(left[0], (old, old))
+    assert _temps(tmp_path) == [] and target.read_text() == "second run\n"
+    # a file of the older naming (no process id): young, it might be a live writer's, so it stays until stale
+    older = tmp_path / ".eo.csv.abcd_fgh.tmp"
+    older.write_text("half a tab")
     with atomic_write(target) as handle:
         handle.write("third run\n")
-    assert _temps(tmp_path) == [] and target.read_text() == "third run\n"
+    assert _temps(tmp_path) == [older]
+    old = time.time() - atomic.STALE_AFTER_S - 60
+    os.utime(older, (old, old))
+    with atomic_write(target) as handle:
+        handle.write("fourth run\n")
+    assert _temps(tmp_path) == [] and target.read_text() == "fourth run\n"
 
 
 def test_stale_files_of_live_writers_and_other_names_are_kept(tmp_path):

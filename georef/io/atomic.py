@@ -12,10 +12,13 @@ Guarantees (``docs/report.md``, section "Safe output"):
 * **Write protection is kept.** A target without any write permission bit (e.g. mode 0444), or one this user
   may not write, is refused with :class:`OutputError`, also for root. An existing target keeps its permission
   bits; a new one gets ``0666 & ~umask``.
-* **No litter.** Temporary files are named ``.NAME.XXXXXXXX.tmp`` (``XXXXXXXX``: 8 random characters) and held
-  under an exclusive ``flock`` while written. SIGKILL cannot be caught, so every write first removes the stale
-  temporary files of its own target: those of our naming, older than :data:`STALE_AFTER_S` and not locked (their
-  writer is gone: the kernel drops a dead process's locks).
+* **No litter.** Temporary files are named ``.NAME.PID.XXXXXXXX.tmp`` (``PID``: the writer's process id,
+  ``XXXXXXXX``: 8 random characters) and are under an exclusive ``flock`` from before they get their name (Linux
+  ``O_TMPFILE``, linked in locked; elsewhere locked right after creation) until they are renamed. SIGKILL cannot
+  be caught, so every write first removes the temporary files of its own target that a killed writer left: those
+  of our naming that are not locked (the kernel drops a dead process's locks) and whose writer process is gone,
+  whatever their age, or that are older than :data:`STALE_AFTER_S` (a reused process id; the older
+  ``.NAME.XXXXXXXX.tmp`` naming).
 * **All or nothing for a set.** Inside ``with atomic_group():`` every :func:`atomic_write` keeps its finished
   temporary file until the group ends; only when every write succeeded are they renamed onto their targets, and
   on any failure all of them are removed and no target changes. Renames within one directory of one file
@@ -33,9 +36,9 @@ import contextvars
 import errno
 import os
 import re
+import secrets
 import signal
 import stat
-import tempfile
 import threading
 import time
 from collections.abc import Iterator
@@ -50,7 +53,8 @@ try:  # POSIX; elsewhere stale files are never removed (no way to tell a live wr
 except ImportError:  # pragma: no cover - Windows
     fcntl = None  # type: ignore[assignment]
 
-#: a temporary file of ours older than this [s] and not locked is stale (its writer was killed)
+#: a temporary file of ours older than this [s] and not locked is stale (its writer was killed), even when a
+#: process of the id in its name runs (the id reused)
 STALE_AFTER_S = 300.0
 #: signals whose default action ends the process: while a temporary file exists, they remove it first
 CLEANUP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
@@ -74,8 +78,23 @@ class OutputError(GeorefError):
 
 
 def _temp_pattern(name: str) -> re.Pattern[str]:
-    """The names :func:`tempfile.mkstemp` gives our temporary files of target ``name``."""
-    return re.compile(rf"\.{re.escape(name)}\.[A-Za-z0-9_]{{8}}\.tmp")
+    """The names of our temporary files of target ``name``: ``.NAME.PID.XXXXXXXX.tmp`` (group ``pid``), or
+    ``.NAME.XXXXXXXX.tmp`` as earlier versions named them."""
+    return re.compile(rf"\.{re.escape(name)}\.(?:(?P<pid>[1-9][0-9]{{0,9}})\.)?[A-Za-z0-9_]{{8}}\.tmp")
+
+
+def _writer_gone(pid: str | None) -> bool:
+    """Whether no process of id ``pid`` (from a temporary file's name) runs here; False when unknown. POSIX only
+    (on Windows, signal 0 is CTRL_C_EVENT): :func:`remove_stale_temps` does nothing where there is no ``fcntl``."""
+    if pid is None:
+        return False
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return True
+    except (OSError, OverflowError):  # EPERM: another user's process, alive
+        return False
+    return False
 
 
 def resolve_target(path: Path | str) -> Path:
@@ -107,8 +126,9 @@ def resolve_target(path: Path | str) -> Path:
 def remove_stale_temps(path: Path | str, older_than: float = STALE_AFTER_S) -> list[Path]:
     """Remove the temporary files of ours for target ``path`` left by killed writers; returns those removed.
 
-    Only files named ``.NAME.XXXXXXXX.tmp`` that are regular, older than ``older_than`` [s] and not locked by a
-    live writer are removed (nothing, where ``flock`` is unavailable or unsupported by the file system)."""
+    Only regular files of our naming (:func:`_temp_pattern`) that are not locked by a live writer are removed,
+    and of those only the ones whose writer's process is gone or that are older than ``older_than`` [s]
+    (nothing, where ``flock`` is unavailable or unsupported by the file system)."""
     path = Path(path)
     if fcntl is None:  # pragma: no cover - Windows
         return []
@@ -120,7 +140,8 @@ def remove_stale_temps(path: Path | str, older_than: float = STALE_AFTER_S) -> l
     except OSError:
         return []
     for name in names:
-        if not pattern.fullmatch(name):
+        match = pattern.fullmatch(name)
+        if not match:
             continue
         candidate = path.parent / name
         try:
@@ -129,7 +150,7 @@ def remove_stale_temps(path: Path | str, older_than: float = STALE_AFTER_S) -> l
             continue
         try:
             st = os.fstat(fd)
-            if not stat.S_ISREG(st.st_mode) or now - st.st_mtime < older_than:
+            if not stat.S_ISREG(st.st_mode) or (now - st.st_mtime < older_than and not _writer_gone(match["pid"])):
                 continue
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -201,6 +222,77 @@ def _unregister(name: str) -> None:
         empty = not _live
     if empty:
         _restore_handlers()
+
+
+def _locked(fd: int) -> None:
+    """Take the exclusive lock that tells a live writer's temporary file from a dead one's (where there are
+    locks: without them, :func:`remove_stale_temps` removes nothing)."""
+    if fcntl is not None:
+        with contextlib.suppress(OSError):
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def _link_unnamed(target: Path) -> tuple[int, str] | None:
+    """A new file beside ``target`` made without a name (Linux ``O_TMPFILE``), locked, then given its name: it is
+    never seen unlocked. None where the system or the file system cannot."""
+    flag = getattr(os, "O_TMPFILE", 0)
+    if not flag or fcntl is None:
+        return None
+    try:
+        fd = os.open(target.parent, flag | os.O_RDWR | os.O_CLOEXEC, 0o600)
+    except OSError:  # a kernel or file system without it
+        return None
+    name = None
+    try:
+        _locked(fd)
+        name = _link_in(fd, target)
+    finally:
+        if name is None:
+            os.close(fd)
+    return None if name is None else (fd, name)
+
+
+def _link_in(fd: int, target: Path) -> str | None:
+    """Give the unnamed file ``fd`` a temporary name beside ``target``; None where it cannot be linked."""
+    try:
+        folder = os.open(target.parent, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        for _ in range(100):
+            name = _temp_name(target)
+            # through /proc with linkat(AT_SYMLINK_FOLLOW), which os.link calls when given a dst_dir_fd
+            with contextlib.suppress(FileExistsError):
+                os.link(f"/proc/self/fd/{fd}", os.path.basename(name), dst_dir_fd=folder)
+                return name
+    except OSError:  # no /proc, or a file system that cannot: the caller creates a named file
+        return None
+    finally:
+        os.close(folder)
+    return None
+
+
+def _temp_name(target: Path) -> str:
+    """A fresh ``.NAME.PID.XXXXXXXX.tmp`` beside ``target`` (this process's id, 8 random hex digits)."""
+    return str(target.parent / f".{target.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+
+
+def _create_temp(target: Path) -> tuple[int, str]:
+    """Our new temporary file beside ``target`` (``.NAME.PID.XXXXXXXX.tmp``), already locked: its descriptor and
+    name. Linked in locked where the system can (:func:`_link_unnamed`), else created and locked at once."""
+    made = _link_unnamed(target)
+    if made is not None:
+        return made
+    for _ in range(100):
+        name = _temp_name(target)
+        try:
+            fd = os.open(name, os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
+                         | getattr(os, "O_CLOEXEC", 0), 0o600)
+        except FileExistsError:
+            continue
+        _locked(fd)
+        return fd, name
+    raise FileExistsError(errno.EEXIST, "no free name for a temporary file", str(target.parent))
 
 
 def _discard(name: str) -> None:
@@ -314,16 +406,13 @@ def atomic_write(path: Path | str, mode: str = "w", encoding: str | None = "utf-
     remove_stale_temps(target)
     final_mode = _mode_for(target)
     try:
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+        fd, tmp_name = _create_temp(target)
     except OSError as exc:
         raise OutputError(target, f"cannot write in its folder: {exc.strerror or exc}") from None
     _register(tmp_name)
     lock_fd = -1
     try:
-        lock_fd = os.dup(fd)
-        if fcntl is not None:
-            with contextlib.suppress(OSError):
-                fcntl.flock(lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        lock_fd = os.dup(fd)  # the lock is the open file's: this copy holds it until the rename
         text = "b" not in mode
         try:
             with os.fdopen(fd, mode, encoding=encoding if text else None, newline="" if text else None) as handle:

@@ -9,6 +9,7 @@ with ``time`` NaN and its reason in ``Exposures.problem``, so the EO table gets 
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -76,12 +77,19 @@ def _unwrap_midnight(path: Path, seconds: np.ndarray, lines: np.ndarray, notices
     return seconds
 
 
+def repeated_frames(frame: np.ndarray) -> np.ndarray:
+    """Per row: whether its frame id is used by another row too. The ids are counted by hashing: sorting them
+    (``np.unique``) copies them at the width of the longest one, for every row."""
+    ids = frame.tolist()
+    counts = Counter(ids)
+    return np.fromiter((counts[i] > 1 for i in ids), dtype=bool, count=len(ids))
+
+
 def _frame_notices(path: Path, frame: np.ndarray, times: np.ndarray, lines: np.ndarray,
                    names: Mapping[str, str]) -> list[InputNotice]:
     notices = []
-    _, counts = np.unique(frame, return_counts=True)
-    if np.any(counts > 1):
-        duplicated = np.isin(frame, np.unique(frame)[counts > 1])
+    duplicated = repeated_frames(frame)
+    if duplicated.any():
         notices.append(InputNotice(path, lines[duplicated].tolist(), names["number"],
                                    "frame number used more than once; every row is kept and flagged"))
     back = np.flatnonzero(np.diff(times) < 0) + 1

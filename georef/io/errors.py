@@ -7,6 +7,10 @@ from pathlib import Path
 
 #: the longest piece of a cell an error message quotes [characters]
 EXCERPT_CHARS = 40
+#: the longest field a text table may hold [characters]: a longer one is an error naming its line and column, so
+#: no reader holds an unbounded line, and a text column (frame ids) held at numpy's fixed width costs at most
+#: 4 bytes x this per row. A frame id, an image name or a number is far shorter.
+MAX_FIELD_CHARS = 256
 
 
 def excerpt(text: object, limit: int = EXCERPT_CHARS) -> str:

@@ -19,6 +19,11 @@ The rules (``docs/formats.md``, "Reading text tables"):
 * **Numbers** are ASCII decimals (``-1.5``, ``2e-3``). ``inf``, ``nan``, overflowing exponents, hexadecimal,
   digits of other scripts, decimal commas and quoted numbers are errors naming line and column. Messages
   quote at most :data:`~georef.io.errors.EXCERPT_CHARS` characters of a cell.
+* **Length**: a field (wanted or not) of more than :data:`~georef.io.errors.MAX_FIELD_CHARS` characters is an
+  error naming its line and column, found as the bytes stream past: no reader holds more of such a line than a
+  block, and a text column at numpy's fixed width stays small.
+* **Pipes** (FIFOs) are read into memory once; a writer has :data:`PIPE_WAIT_S` to send its first byte (or to
+  close the pipe), after which the pipe is an error rather than a wait for ever.
 
 Three readers, which must give the same numbers to the bit (``tests/test_table_paths.py``):
 
@@ -43,6 +48,7 @@ import functools
 import io
 import os
 import re
+import select
 import stat
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -51,7 +57,7 @@ from typing import TYPE_CHECKING, BinaryIO, Literal
 
 import numpy as np
 
-from georef.io.errors import InputError, InputNotice, excerpt
+from georef.io.errors import EXCERPT_CHARS, MAX_FIELD_CHARS, InputError, InputNotice, excerpt
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -66,6 +72,8 @@ _BLOCK = 1 << 18          # bytes handed to pandas per read
 _SNIFF = 1 << 16          # bytes looked at before parsing (header, separator, binary check)
 _MAX_ANOMALIES = 10_000   # short or blank lines recorded before the file is called unreadable
 _LINE_PEEK = 4096         # bytes of a line read back to explain it
+#: how long a named pipe may keep a reader waiting for its writer's first byte [s]
+PIPE_WAIT_S = 5.0
 
 _UTF8_BOM = b"\xef\xbb\xbf"
 _UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
@@ -190,10 +198,33 @@ def _nul_error(path: Path, data: bytes, index: int, sep: str | None = None,
                       "(a binary file, a damaged copy, or UTF-16 without a byte-order mark?)")
 
 
+def _open_pipe(path: Path, wait_s: float = PIPE_WAIT_S) -> int:
+    """A blocking descriptor on named pipe ``path`` once its writer has sent something or closed it.
+
+    A plain ``open`` of a FIFO waits for a writer for ever; it is opened non-blocking instead (which never waits)
+    and polled for at most ``wait_s`` [s]. Raises :class:`InputError` when nothing came in that time."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except OSError as exc:
+        raise InputError(path, None, None, f"cannot read the pipe: {exc.strerror or exc}") from None
+    try:
+        poller = select.poll()
+        poller.register(fd, select.POLLIN)  # a writer that came and went shows as POLLHUP (always reported)
+        if not poller.poll(max(wait_s, 0.0) * 1000.0):
+            raise InputError(path, None, None, f"a named pipe (FIFO) and no writer appeared within {wait_s:g} s "
+                             "(nothing was written to it): start the program that writes it, or give a file")
+        os.set_blocking(fd, True)  # a writer is there: wait for the rest of its output as long as it takes
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
 def _read_pipe(path: Path) -> bytes:
-    """All bytes of a pipe (FIFO), refused at once when its first block is binary."""
+    """All bytes of a pipe (FIFO), refused at once when its first block is binary; :func:`_open_pipe` bounds the
+    wait for a writer."""
     parts = []
-    with open(path, "rb") as handle:
+    with open(_open_pipe(path), "rb") as handle:
         first = handle.read(_SNIFF)
         if b"\0" in first:
             raise _nul_error(path, first, first.index(b"\0"))
@@ -408,6 +439,10 @@ class _Scanner(io.RawIOBase):
         self._in_word = False          # whitespace mode: the previous byte was part of a word
         self._nonblank = False         # the current line has a non-blank byte so far
         self._pending_cr = False
+        #: the bytes that end a field: the separator (blanks, for runs of blanks) and line ends
+        self._break_bytes = (b" ", b"\t", b"\n", b"\r") if sep is None else (sep.encode(), b"\n", b"\r")
+        self._field_chars = 0          # characters of the field the previous block ended in
+        self._field_head = b""         # and its first bytes (for a message)
         self._decoder = codecs.getincrementaldecoder("utf-8")()
         self.short: list[tuple[int, int, int]] = []   # (line, fields, offset of its first byte)
         self.blank: list[int] = []
@@ -470,10 +505,66 @@ class _Scanner(io.RawIOBase):
             self._pending_cr = bool(a[-1] == 13)
         else:
             self._pending_cr = False
-        self._count_fields(chunk, a)
-
-    def _count_fields(self, chunk: bytes, a: np.ndarray) -> None:
         newlines = np.flatnonzero(a == 10)
+        self._check_field_lengths(chunk, a, newlines)
+        self._count_fields(chunk, a, newlines)
+
+    def _breaks(self, a: np.ndarray) -> np.ndarray:
+        """Mask of the bytes that end a field (:attr:`_break_bytes`)."""
+        if self.sep is None:
+            return (a == 32) | (a == 9) | (a == 10) | (a == 13)
+        return (a == self._sep_byte) | (a == 10) | (a == 13)
+
+    def _check_field_lengths(self, chunk: bytes, a: np.ndarray, newlines: np.ndarray) -> None:
+        """Stop at the first field of more than :data:`MAX_FIELD_CHARS` characters (UTF-8 continuation bytes not
+        counted) before it is handed on, so that no reader holds more of it than a block. Only where a line is
+        longer than that in bytes (never fewer than its characters) are its fields looked at."""
+        before = self.offset - self.line_start  # bytes of the current line in earlier blocks
+        if len(newlines):
+            longest = max(before + int(newlines[0]), int(np.diff(newlines).max(initial=1)) - 1,
+                          len(a) - 1 - int(newlines[-1]))
+        else:
+            longest = before + len(a)
+        if longest > MAX_FIELD_CHARS:
+            self._check_fields(chunk, a)
+        tail = max(chunk.rfind(byte) for byte in self._break_bytes) + 1
+        self._field_chars = _chars(a[tail:]) + (self._field_chars if tail == 0 else 0)
+        self._field_head = ((self._field_head if tail == 0 else b"") + chunk[tail:tail + 4 * EXCERPT_CHARS])[
+            :4 * EXCERPT_CHARS]
+
+    def _check_fields(self, chunk: bytes, a: np.ndarray) -> None:
+        """:meth:`_check_field_lengths` field by field: in bytes first, in characters where that is too many."""
+        ends = np.flatnonzero(self._breaks(a))
+        bounds = np.concatenate(([-1], ends, [len(a)]))
+        spans = np.diff(bounds) - 1
+        spans[0] += self._field_chars
+        for k in np.flatnonzero(spans > MAX_FIELD_CHARS).tolist():
+            begin = int(bounds[k]) + 1
+            chars = _chars(a[begin:int(bounds[k + 1])]) + (self._field_chars if k == 0 else 0)
+            if chars > MAX_FIELD_CHARS:
+                self._long_field(chunk, begin, chars + (self._count_rest() if k == len(ends) else 0),
+                                 self._field_head if k == 0 else b"")
+
+    def _long_field(self, chunk: bytes, begin: int, total: int, earlier: bytes) -> None:
+        """Stop at a field of ``total`` characters that starts at byte ``begin`` of ``chunk`` (or, with
+        ``earlier``, its first bytes, in an earlier block)."""
+        head = (earlier + chunk[begin:begin + 4 * EXCERPT_CHARS]).decode("utf-8", errors="replace")[:EXCERPT_CHARS]
+        self._fail(chunk, begin, f"field of {total} characters, at most {MAX_FIELD_CHARS}: {head!r}… ({total} "
+                                 "characters)")
+
+    def _count_rest(self) -> int:
+        """Characters of the field the current block ends in that follow the block (read on, 1 MiB at a time, up
+        to its end); the scanner stops after this, so what it reads is not handed on."""
+        total = 0
+        while block := self._handle.read(1 << 20):
+            a = np.frombuffer(block, dtype=np.uint8)
+            brk = np.flatnonzero(self._breaks(a))
+            total += _chars(a[: brk[0]] if len(brk) else a)
+            if len(brk):
+                break
+        return total
+
+    def _count_fields(self, chunk: bytes, a: np.ndarray, newlines: np.ndarray) -> None:
         if self.sep is None:
             brk = (a == 32) | (a == 9) | (a == 13) | (a == 10)
             before = np.empty(len(a), dtype=bool)
@@ -557,6 +648,11 @@ class _Scanner(io.RawIOBase):
             elif fields < self.n_fields:
                 self.short.append((self.line, fields, self.line_start))
             self.n_lines += 1
+
+
+def _chars(a: np.ndarray) -> int:
+    """Characters in UTF-8 bytes ``a``: the bytes that are not continuation bytes (0b10xxxxxx)."""
+    return int(np.count_nonzero((a & 0xC0) != 0x80))
 
 
 def _nth_separator(text: bytes, sep: str | None, n: int) -> int | None:
@@ -884,12 +980,16 @@ def _parse_compiled(layout: _Layout, kinds: dict[int, Kind]) -> tuple[dict[int, 
     parse = _table_kernel()
     layout.handle.seek(layout.data_start)
     numbers, texts = [], {i: [] for i in wanted if kinds[i] == "str"}
+    # the longest line of the header's fields, none longer than the limit (and a CR): a longer one is not clean
+    longest = len(layout.header) * (MAX_FIELD_CHARS + 1) + 1
     carry = b""
     while True:
         block = layout.handle.read(_KERNEL_BLOCK)
         data = carry + block
         if block:
             cut = data.rfind(b"\n") + 1
+            if len(data) - cut > longest:
+                return None
             if cut == 0:
                 carry = data
                 continue

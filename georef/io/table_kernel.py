@@ -1,10 +1,10 @@
 """Compiled reading of a clean block of a text table (:mod:`georef.io.table`): fields split, numbers converted.
 
 One pass over the bytes of whole lines: each line must hold exactly the header's number of fields (split at the
-separator byte, or at runs of blanks, ``sep = -1``), end in LF or CR LF and not be blank; each wanted field is
-converted by its kind. Anything else stops the block with a status other than :data:`CLEAN`, and the caller
-reads the file with numpy or pandas instead, which then give the messages. So this path never decides what is
-an error; it only takes the files where nothing is.
+separator byte, or at runs of blanks, ``sep = -1``) of at most :data:`~georef.io.errors.MAX_FIELD_CHARS` bytes
+each, end in LF or CR LF and not be blank; each wanted field is converted by its kind. Anything else stops the
+block with a status other than :data:`CLEAN`, and the caller reads the file with numpy or pandas instead, which
+then give the messages. So this path never decides what is an error; it only takes the files where nothing is.
 
 Numbers are converted only where one IEEE operation gives the correctly rounded result, as a strtod does
 (Clinger 1990, "How to read floating point numbers accurately", the fast path): at most 15 significant digits,
@@ -24,8 +24,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from georef.io.errors import MAX_FIELD_CHARS
+
 #: statuses of a block: read, or the first thing that stopped it
-CLEAN, FIELD_COUNT, BLANK_LINE, LONE_CR, BAD_NUMBER, BAD_HEX, BAD_TEXT = 0, 1, 2, 3, 4, 5, 6
+CLEAN, FIELD_COUNT, BLANK_LINE, LONE_CR, BAD_NUMBER, BAD_HEX, BAD_TEXT, FIELD_TOO_LONG = 0, 1, 2, 3, 4, 5, 6, 7
 #: kinds of a wanted field
 FLOAT, HEX, TEXT = 0, 1, 2
 #: the exact powers of ten of a float64
@@ -150,6 +152,7 @@ def parse_block(buf: np.ndarray, n: int, sep: int, n_fields: int, slot: np.ndarr
                 code = FIELD_COUNT
                 break
             out = slot[field]
+            field_start = i
             if out >= 0 and kind[out] != TEXT:
                 value, i, ok = _number(buf, i, n) if kind[out] == FLOAT else _hex(buf, i, n)
                 if not ok:
@@ -174,6 +177,9 @@ def parse_block(buf: np.ndarray, n: int, sep: int, n_fields: int, slot: np.ndarr
                         break
                     starts[row, out] = a
                     ends[row, out] = i
+            if i - field_start > MAX_FIELD_CHARS:  # the other readers name it; none holds such a line
+                code = FIELD_TOO_LONG
+                break
             field += 1
             if i >= n:
                 break
