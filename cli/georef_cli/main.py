@@ -52,6 +52,8 @@ from .output import is_stdout, write_json, write_target
 if TYPE_CHECKING:
     from rich.progress import Progress
 
+    from georef.sim.flight import SimConfig
+
 #: exit codes (docs/qc.md)
 EXIT_USER_ERROR = 2
 EXIT_INTERNAL_ERROR = 3
@@ -438,14 +440,23 @@ def _print_summary(result: Any, output: Path, verbose: bool, to: Console) -> Non
 @app.command(cls=PlainCoercionCommand)
 @_user_errors
 def simulate(
-    folder: Annotated[Path, typer.Argument(help="Folder to write POS.txt, Kamera.txt, truth.csv, flight.toml.")],
+    folder: Annotated[Path, typer.Argument(help="Folder to write POS.txt, Kamera.txt, truth.csv, flight.toml "
+                                                "(a drone: imu.csv, gnss.csv, events.csv, truth.csv, truth_traj.csv, "
+                                                "flight.toml).")],
     vehicle: Annotated[str, typer.Option(
         help="helicopter (survey strips, POS unit with its own attitude), multicopter (hover, then legs flown "
-             "sideways with the heading held; no POS unit) or car (roads, turns, stops; no POS unit).")
+             "sideways with the heading held; no POS unit), car (roads, turns, stops; no POS unit) or drone (a "
+             "drone's whole log: on the ground, spin-up, take-off, hover, survey legs, maybe a landing; rotor "
+             "vibration, thermal IMU bias, GNSS receiver with latency, camera trigger latency; every parameter "
+             "drawn by --seed; writes the generic files).")
     ] = "helicopter",
-    duration: Annotated[float, typer.Option(help="Flight length in seconds.")] = 180.0,
-    rate: Annotated[float, typer.Option(help="POS row rate in Hz (50-200).")] = 50.0,
-    camera_rate: Annotated[float, typer.Option(help="Exposures per second.")] = 3.0,
+    duration: Annotated[float | None, typer.Option(
+        help="Flight length in seconds (default 180; the drone's is drawn by --seed).")] = None,
+    rate: Annotated[float | None, typer.Option(help="POS row (drone: IMU) rate in Hz, 50-400 (default 50; drone "
+                                                     "200).")] = None,
+    camera_rate: Annotated[float | None, typer.Option(
+        help="Exposures per second (default 3). Drone: triggers by time at this rate instead of by distance.")
+    ] = None,
     seed: Annotated[int, typer.Option(help="Random seed: the same seed gives the same files.")] = 1,
     imu: Annotated[str | None, typer.Option(
         help="IMU error preset: mems-ivru, mems-consumer, consumer-phone, tactical-fog (default: mems-ivru for "
@@ -459,37 +470,44 @@ def simulate(
         help="Vibration: none, rotor (16 Hz blade-pass sinusoids + harmonic, 0.4 m/s^2, 0.2 deg/s), white "
              "(Gaussian 0.25/0.25/0.4 m/s^2, 0.1 deg/s at 200 Hz averaged to the row rate) or narrowband "
              "(random, 20 +- 2 Hz, 0.3/0.3/0.5 m/s^2, 0.15 deg/s RMS). Default: rotor for the helicopter, "
-             "narrowband for the multicopter, white for the car.")] = None,
+             "narrowband for the multicopter, white for the car. The drone's rotor harmonics follow its thrust: "
+             "only none switches them off.")] = None,
     vibration_level: Annotated[float, typer.Option(
         help="Multiplies the vibration amplitudes (1 = the values above, 0 = none).")] = 1.0,
-    gnss_rate: Annotated[float, typer.Option(
-        help="GNSS fix rate in Hz (1, 5, 10...). POS.txt tags fixes to whole seconds, so above 1 Hz use "
-             "--generic and georef fuse.")] = 1.0,
+    gnss_rate: Annotated[float | None, typer.Option(
+        help="GNSS fix rate in Hz (1, 5, 10...; default 1, drone 5). POS.txt tags fixes to whole seconds, so above "
+             "1 Hz use --generic and georef fuse.")] = None,
+    gnss_drop: Annotated[float | None, typer.Option(
+        help="Drone: fraction of GNSS fixes missing, single or in runs of 2-5 (e.g. 0.03 with --gnss-rate 1).")
+    ] = None,
+    start: Annotated[str | None, typer.Option(
+        help="Drone: ground (the log starts at power-on on the ground; default) or hover (already airborne).")
+    ] = None,
     outage: Annotated[list[str] | None, typer.Option(
         help="GNSS outage START,LENGTH in seconds from the flight start; repeatable.")] = None,
     outlier: Annotated[list[str] | None, typer.Option(
         help="GNSS outlier TIME,SIZE (s from start, metres); repeatable.")] = None,
     hover: Annotated[float | None, typer.Option(
-        help="Multicopter: seconds of hover at the start (default 15).")] = None,
+        help="Multicopter: seconds of hover at the start (default 15); drone: after the take-off.")] = None,
     heading_policy: Annotated[str | None, typer.Option(
-        help="Multicopter: fixed (heading held north, legs flown sideways; default), track (heading along "
-             "each leg) or rotating (6 deg/s).")] = None,
+        help="Multicopter, drone: fixed (heading held north, legs flown sideways; default), track (heading "
+             "along each leg) or rotating (6 deg/s).")] = None,
     speed: Annotated[float | None, typer.Option(
-        help="Multicopter leg speed (2-12 m/s, default 8) or car cruising speed (up to 15 m/s, default 12), "
-             "m/s.")] = None,
+        help="Multicopter / drone leg speed (2-12 m/s, default 8) or car cruising speed (up to 15 m/s, default "
+             "12), m/s.")] = None,
     crs: Annotated[str | None, typer.Option(
         help="Projected CRS to put in the written flight.toml, e.g. EPSG:3765.")] = None,
     generic: Annotated[bool, typer.Option(
         help="Also write imu.csv, gnss.csv and truth_traj.csv (the generic inputs of georef fuse).")] = False,
     magnetometer: Annotated[bool, typer.Option(
         help="Add mag_x, mag_y, mag_z [uT, body axes] to imu.csv (48 uT field, inclination 60 deg, declination "
-             "4 deg, hard iron, 0.3 uT noise); implies --generic.")] = False,
+             "4 deg, hard iron, 0.3 uT noise; drone: plus the motor currents' field); implies --generic.")] = False,
     autopilot: Annotated[bool, typer.Option(
-        help="Add the autopilot's roll, pitch, yaw [deg; yaw from true north with a ~3 deg error] to imu.csv; "
-             "implies --generic.")] = False,
+        help="Add the autopilot's roll, pitch, yaw [deg; yaw from true north with a ~3 deg error; drone: plus a "
+             "mounting offset of up to 2 deg] to imu.csv; implies --generic.")] = False,
     quiet: Quiet = False,
 ) -> None:
-    """Simulate a flight or drive with its truth: helicopter survey (default), multicopter or car."""
+    """Simulate a flight or drive with its truth: helicopter survey (default), multicopter, car or drone."""
     import dataclasses
 
     from georef.sim.files import write_flight, write_generic
@@ -510,12 +528,23 @@ def simulate(
         raise typer.BadParameter(f"--vehicle must be one of {', '.join(VEHICLES)}, got {vehicle!r}")
     plan_options = {"hover": hover, "heading-policy": heading_policy}
     for name, value in plan_options.items():
-        if value is not None and vehicle != "multicopter":
-            raise typer.BadParameter(f"--{name} applies to --vehicle multicopter only")
+        if value is not None and vehicle not in ("multicopter", "drone"):
+            raise typer.BadParameter(f"--{name} applies to --vehicle multicopter only (and to the drone's survey)")
     if speed is not None and vehicle == "helicopter":
-        raise typer.BadParameter("--speed applies to --vehicle multicopter or car")
+        raise typer.BadParameter("--speed applies to --vehicle multicopter, drone or car")
+    for name, value in {"start": start, "gnss-drop": gnss_drop}.items():
+        if value is not None and vehicle != "drone":
+            raise typer.BadParameter(f"--{name} applies to --vehicle drone only")
+    if vehicle == "drone":
+        cfg = _drone_config(duration, seed, start, rate, camera_rate, imu, gyro_bias, accel_bias, vibration,
+                            vibration_level, gnss_rate, pairs(outage, "--outage"), pairs(outlier, "--outlier"),
+                            gnss_drop, hover, heading_policy, speed, magnetometer, autopilot)
+        _write_drone(cfg, folder, crs, quiet)
+        return
+    rate = 50.0 if rate is None else rate
+    gnss_rate = 1.0 if gnss_rate is None else gnss_rate
     changes: dict[str, Any] = {
-        "pos_rate_hz": rate, "camera_rate_hz": camera_rate,
+        "pos_rate_hz": rate, "camera_rate_hz": 3.0 if camera_rate is None else camera_rate,
         "gnss": GnssModel(rate_hz=gnss_rate, outages=pairs(outage, "--outage"), outliers=pairs(outlier, "--outlier")),
     }
     if imu is not None:
@@ -531,7 +560,7 @@ def simulate(
         changes["magnetometer"] = MagnetometerModel()
     if autopilot:
         changes["autopilot"] = AutopilotModel()
-    cfg = SimConfig.for_vehicle(vehicle, duration_s=duration, seed=seed, **changes)
+    cfg = SimConfig.for_vehicle(vehicle, duration_s=180.0 if duration is None else duration, seed=seed, **changes)
     plan_changes = {"hover_s": hover, "heading_policy": heading_policy,
                     "speed_mps" if vehicle == "multicopter" else "cruise_speed_mps": speed}
     plan_changes = {k: v for k, v in plan_changes.items() if v is not None}
@@ -550,6 +579,65 @@ def simulate(
         out.print(f"wrote {escape(', '.join(str(p) for p in paths.values()))}", highlight=False, soft_wrap=True)
         out.print(f"{vehicle}: {len(flight.pos)} POS rows at {rate:g} Hz, {len(flight.exposures)} exposures, "
                   f"{len(flight.gnss_fixes)} GNSS fixes at {gnss_rate:g} Hz")
+
+
+def _drone_config(duration: float | None, seed: int, start: str | None, rate: float | None,
+                  camera_rate: float | None, imu: str | None, gyro_bias: str | None, accel_bias: str | None,
+                  vibration: str | None, vibration_level: float, gnss_rate: float | None,
+                  outages: list[tuple[float, float]], outliers: list[tuple[float, float]], gnss_drop: float | None,
+                  hover: float | None, heading_policy: str | None, speed: float | None, magnetometer: bool,
+                  autopilot: bool) -> SimConfig:
+    """``georef simulate --vehicle drone``: the configuration drawn by ``seed``, with what the user gave."""
+    import dataclasses
+
+    from georef.sim.flight import SimConfig
+
+    changes: dict[str, Any] = {}
+    if rate is not None:
+        changes["pos_rate_hz"] = rate
+    if imu is not None:
+        changes["imu_preset"] = imu
+    if gyro_bias is not None:
+        changes["gyro_bias_rad_s"] = tuple(np.radians(_triple(gyro_bias, "--gyro-bias", "deg/s")))
+    if accel_bias is not None:
+        changes["accel_bias_mps2"] = _triple(accel_bias, "--accel-bias", "m/s^2")
+    cfg = SimConfig.for_vehicle("drone", duration_s=duration, seed=seed, start=start or "ground",
+                                with_magnetometer=magnetometer, with_autopilot=autopilot, **changes)
+    gnss_changes: dict[str, Any] = {name: value for name, value in (("rate_hz", gnss_rate),
+                                                                    ("drop_fraction", gnss_drop)) if value is not None}
+    gnss_changes.update({name: value for name, value in (("outages", outages), ("outliers", outliers)) if value})
+    cfg.gnss = dataclasses.replace(cfg.gnss, **gnss_changes)
+    if camera_rate is not None:
+        cfg.camera_trigger = dataclasses.replace(cfg.camera_trigger, mode="time", interval_s=1.0 / camera_rate)
+    if vibration not in (None, "none"):
+        raise typer.BadParameter("--vibration for the drone: only none (its rotor harmonics follow the thrust; "
+                                 "--vibration-level scales them)")
+    cfg.vibration = None if vibration == "none" else dataclasses.replace(cfg.vibration, level=vibration_level)
+    survey = {name: value for name, value in (("hover_s", hover), ("heading_policy", heading_policy),
+                                              ("speed_mps", speed)) if value is not None}
+    if survey:
+        cfg.plan = dataclasses.replace(cfg.plan, survey=dataclasses.replace(cfg.plan.survey, **survey))
+    return cfg
+
+
+def _write_drone(cfg: SimConfig, folder: Path, crs: str | None, quiet: bool) -> None:
+    """Simulate the drone flight and write its generic files and flight.toml."""
+    from georef.sim.files import write_generic, write_processing_config
+    from georef.sim.flight import simulate as run
+
+    progress, step = _stage_progress(quiet, total=2)
+    with progress if progress is not None else contextlib.nullcontext():
+        step("simulating")
+        flight = run(cfg)
+        step("writing files")
+        paths = write_generic(flight, folder)
+        paths["flight.toml"] = write_processing_config(flight, folder, crs)
+    if not quiet:
+        plan = cfg.plan
+        out.print(f"wrote {escape(', '.join(str(p) for p in paths.values()))}", highlight=False, soft_wrap=True)
+        out.print(f"drone ({plan.start} start{', landing' if plan.land else ''}): {plan.duration_s:.0f} s, "
+                  f"{len(flight.pos)} IMU rows at {cfg.pos_rate_hz:g} Hz, {len(flight.exposures)} camera events, "
+                  f"{len(flight.gnss_fixes)} GNSS fixes at {cfg.gnss.rate_hz:g} Hz")
 
 
 @app.command(cls=PlainCoercionCommand)

@@ -4,8 +4,10 @@
 writes it as ``POS.txt``, ``Kamera.txt``, ``truth.csv`` and a ``flight.toml`` that processes it.
 
 The vehicle is chosen by the type of ``SimConfig.plan``: :class:`~georef.sim.trajectory.FlightPlan`
-(helicopter survey, the default), :class:`~georef.sim.multicopter.MulticopterPlan` or
-:class:`~georef.sim.car.CarPlan`; :meth:`SimConfig.for_vehicle` gives each vehicle's typical installation.
+(helicopter survey, the default), :class:`~georef.sim.multicopter.MulticopterPlan`,
+:class:`~georef.sim.car.CarPlan` or :class:`~georef.sim.drone.DronePlan` (a drone's whole log, from the ground,
+assembled by :mod:`georef.sim.drone_flight`); :meth:`SimConfig.for_vehicle` gives each vehicle's typical
+installation (the drone's drawn from realistic ranges by seed, :mod:`georef.sim.drone_config`).
 The default configuration draws its random numbers in the same order as it always has (the bundled flight in
 ``data/`` and the tests depend on it); every optional output (magnetometer, autopilot attitude) draws from
 its own random stream, so switching it on changes nothing else.
@@ -32,7 +34,11 @@ from georef.frames import (
 from georef.frames.mounting import camera_attitude, lever_arm_ecef
 from georef.imu_errors import imu_preset
 from georef.sim.car import CarPlan, drive
+from georef.sim.drone import DronePlan, fly_drone
+from georef.sim.drone_config import DRONE_OPTIONS, drone_settings
 from georef.sim.multicopter import MulticopterPlan, fly_multicopter
+from georef.sim.receiver import ReceiverGnssModel
+from georef.sim.rotor import RotorVibrationModel
 from georef.sim.sensors import (
     AutopilotModel,
     GnssModel,
@@ -44,14 +50,17 @@ from georef.sim.sensors import (
     gauss_markov,
     magnetometer,
 )
+from georef.sim.thermal import ThermalBiasModel, add_thermal_bias
 from georef.sim.trajectory import FlightPlan, Trajectory, fly
+from georef.sim.trigger import CameraTriggerModel
 
 #: Vehicle name -> plan type (the plan's type selects the vehicle in :func:`simulate`).
-VEHICLES: dict[str, type] = {"helicopter": FlightPlan, "multicopter": MulticopterPlan, "car": CarPlan}
+VEHICLES: dict[str, type] = {"helicopter": FlightPlan, "multicopter": MulticopterPlan, "car": CarPlan,
+                             "drone": DronePlan}
 #: POS columns that only a POS unit (``SimConfig.unit``) writes.
 UNIT_COLUMNS = ["IACC_X", "IACC_Y", "IACC_Z", "ROLL", "PITCH", "YAW"]
 #: Sub-stream numbers of the optional outputs' random generators (seeded with ``(seed, stream)``).
-_MAG_STREAM, _AUTOPILOT_STREAM = 101, 102
+MAG_STREAM, AUTOPILOT_STREAM = 101, 102
 
 POS_HEADER = [
     "CNT[HEX]", "ACCS_X", "ACCS_Y", "ACCS_Z", "IACC_X", "IACC_Y", "IACC_Z", "OMGS_X", "OMGS_Y", "OMGS_Z",
@@ -64,22 +73,30 @@ POS_HEADER = [
 class SimConfig:
     """Everything that defines a simulated flight. Units: s, m, deg, Hz unless a name says otherwise.
 
-    * ``plan``: the vehicle and its path (``FlightPlan``, ``MulticopterPlan`` or ``CarPlan``);
+    * ``plan``: the vehicle and its path (``FlightPlan``, ``MulticopterPlan``, ``CarPlan`` or ``DronePlan``);
     * ``imu_preset``: a name of :data:`georef.imu_errors.IMU_PRESETS`; ``gyro_bias_rad_s`` [rad/s] and
       ``accel_bias_mps2`` [m/s^2] (body x, y, z) force the turn-on biases (None: drawn from the preset);
       ``gyro_scale_ppm`` and ``accel_scale_ppm`` (body x, y, z) are scale-factor errors, measured = (1 + s) x true
       (the presets have none: zero unless set);
-    * ``vibration``: :class:`VibrationModel` (kind none/rotor/white/narrowband) or None;
+    * ``vibration``: :class:`VibrationModel` (kind none/rotor/white/narrowband) or None; the drone's is a
+      :class:`~georef.sim.rotor.RotorVibrationModel` (rotor harmonics following the thrust) or None;
     * ``unit``: the POS unit's own attitude and IACC outputs, or None for a vehicle without one (POS.txt
-      then has no ROLL/PITCH/YAW/IACC columns);
+      then has no ROLL/PITCH/YAW/IACC columns; the drone has none);
+    * ``gnss``: :class:`GnssModel`; the drone's is a :class:`~georef.sim.receiver.ReceiverGnssModel`
+      (correlated errors, reported accuracy, arrival time tags, gaps);
+    * ``pos_rate_hz``: the IMU row rate (the drone's IMU log rate, 200 Hz from ``for_vehicle``);
+      ``camera_rate_hz`` and ``camera_jitter_ms``: the exposures of the vehicles other than the drone, whose
+      camera is ``camera_trigger`` (:class:`~georef.sim.trigger.CameraTriggerModel`; None: no camera);
+    * ``thermal``: a board warming up after power-on and biases following its temperature
+      (:class:`~georef.sim.thermal.ThermalBiasModel`, any vehicle; None: off);
     * ``magnetometer``, ``autopilot``: optional extra outputs for the generic files (None: off).
     """
 
-    plan: FlightPlan | MulticopterPlan | CarPlan = field(default_factory=FlightPlan)
+    plan: FlightPlan | MulticopterPlan | CarPlan | DronePlan = field(default_factory=FlightPlan)
     imu_preset: str = "mems-ivru"
-    vibration: VibrationModel | None = field(default_factory=VibrationModel)
+    vibration: VibrationModel | RotorVibrationModel | None = field(default_factory=VibrationModel)
     unit: UnitModel | None = field(default_factory=UnitModel)
-    gnss: GnssModel = field(default_factory=GnssModel)
+    gnss: GnssModel | ReceiverGnssModel = field(default_factory=GnssModel)
     pos_rate_hz: float = 50.0
     camera_rate_hz: float = 3.0
     camera_jitter_ms: float = 4.0
@@ -96,6 +113,8 @@ class SimConfig:
     accel_scale_ppm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     magnetometer: MagnetometerModel | None = None
     autopilot: AutopilotModel | None = None
+    thermal: ThermalBiasModel | None = None
+    camera_trigger: CameraTriggerModel | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.plan, tuple(VEHICLES.values())):
@@ -105,10 +124,39 @@ class SimConfig:
             value = getattr(self, name)
             if value is not None and np.shape(value) != (3,):
                 raise ValueError(f"{name} needs three numbers (body x, y, z), got {value!r}")
+        problems = self._drone_problems() if isinstance(self.plan, DronePlan) else self._non_drone_problems()
+        if problems:
+            raise ValueError(f"{self.vehicle}: " + "; ".join(problems))
+
+    def _drone_problems(self) -> list[str]:
+        """What a drone configuration has that the drone cannot fly with."""
+        problems = []
+        if self.unit is not None:
+            problems.append("a drone has no POS unit (unit=None)")
+        if not isinstance(self.gnss, ReceiverGnssModel):
+            problems.append("its GNSS is a ReceiverGnssModel")
+        if self.vibration is not None and not isinstance(self.vibration, RotorVibrationModel):
+            problems.append("its vibration is a RotorVibrationModel or None")
+        if problems:
+            problems.append("SimConfig.for_vehicle('drone', ...) sets all of these")
+        return problems
+
+    def _non_drone_problems(self) -> list[str]:
+        """The drone's own models in the configuration of another vehicle."""
+        problems = []
+        if isinstance(self.gnss, ReceiverGnssModel):
+            problems.append("ReceiverGnssModel is the drone's GNSS; use GnssModel")
+        if isinstance(self.vibration, RotorVibrationModel):
+            problems.append("RotorVibrationModel needs the drone's thrust; use VibrationModel")
+        if self.camera_trigger is not None:
+            problems.append("camera_trigger is the drone's camera; the others use camera_rate_hz")
+        if self.magnetometer is not None and any(self.magnetometer.motor_interference_ut):
+            problems.append("magnetometer motor interference needs the drone's motors")
+        return problems
 
     @property
     def vehicle(self) -> str:
-        """``helicopter``, ``multicopter`` or ``car``, from the plan's type."""
+        """``helicopter``, ``multicopter``, ``car`` or ``drone``, from the plan's type."""
         return next(name for name, kind in VEHICLES.items() if isinstance(self.plan, kind))
 
     @classmethod
@@ -120,12 +168,20 @@ class SimConfig:
         * ``multicopter``: :class:`MulticopterPlan`, no POS unit, ``mems-consumer`` IMU, narrowband
           vibration (20 +- 2 Hz), a drone's lever arms, no logger quirk;
         * ``car``: :class:`CarPlan`, no POS unit, ``mems-consumer`` IMU, white vibration, roof antenna and
-          camera, no logger quirk.
+          camera, no logger quirk;
+        * ``drone``: :class:`DronePlan` and a drone's sensors (200 Hz IMU with rotor vibration and thermal bias,
+          GNSS receiver, camera trigger) with every parameter drawn from realistic ranges by ``seed``
+          (:func:`georef.sim.drone_config.drone_settings`); ``changes`` may also hold its options ``start``
+          ("ground" or "hover"), ``randomize`` (False: the nominal values), ``with_magnetometer`` and
+          ``with_autopilot`` (the drawn magnetometer and autopilot outputs, off by default).
 
         ``changes`` override any field of the result.
         """
         if vehicle not in VEHICLES:
             raise ValueError(f"vehicle must be one of {', '.join(VEHICLES)}, got {vehicle!r}")
+        if vehicle == "drone":
+            options = {name: changes.pop(name) for name in DRONE_OPTIONS if name in changes}
+            return cls(**{**drone_settings(seed, duration_s, **options), **changes})  # type: ignore[arg-type]
         plan_args: dict[str, object] = {"seed": seed}
         if duration_s is not None:
             plan_args["duration_s"] = duration_s
@@ -146,7 +202,13 @@ class SimConfig:
 
 @dataclass
 class SimulatedFlight:
-    """The simulator's output: the POS table, exposures, per-frame truth and the navigation truth."""
+    """The simulator's output: the POS table, exposures, per-frame truth and the navigation truth.
+
+    A drone's flight (:mod:`georef.sim.drone_flight`) differs: ``pos`` holds only the IMU columns (``ACCS_*``,
+    ``OMGS_*``, ``IMU_TEMP``), ``exposures`` the logged camera events (``frame, time, image``) while
+    ``truth_frames`` is at the true exposure times, and ``gnss_fixes`` carries each fix's ``measured_time`` and
+    the receiver's reported ``sigma_n, sigma_e, sigma_u``.
+    """
 
     config: SimConfig
     pos: pd.DataFrame
@@ -158,9 +220,12 @@ class SimulatedFlight:
     accel_bias: np.ndarray
     mag: np.ndarray | None = None             # (N, 3) magnetometer at POS rows [uT], body axes
     autopilot_rpy: np.ndarray | None = None   # (N, 3) autopilot roll, pitch, yaw at POS rows [rad]
+    imu_temperature_degc: np.ndarray | None = None  # (N,) board temperature at POS rows (SimConfig.thermal)
+    motor_thrust_ratio: np.ndarray | None = None    # (N,) drone: thrust / hover thrust at the rows, 0 motors off
 
 
-def _fine_rate(pos_rate_hz: float) -> tuple[int, int]:
+def fine_grid_rate(pos_rate_hz: float) -> tuple[int, int]:
+    """The truth's grid rate [Hz] (at least 400 Hz, a whole multiple of the row rate) and that multiple."""
     oversample = max(1, int(np.ceil(400.0 / pos_rate_hz)))
     fine = pos_rate_hz * oversample
     if abs(fine - round(fine)) > 1e-9:
@@ -235,7 +300,7 @@ def _gnss(cfg: SimConfig, fine: Trajectory, fine_rate: int, row_time: np.ndarray
     return fixes, held
 
 
-def _frame_truth(cfg: SimConfig, fine: Trajectory, fine_time: np.ndarray, frame_time: np.ndarray,
+def frame_truth(cfg: SimConfig, fine: Trajectory, fine_time: np.ndarray, frame_time: np.ndarray,
                  yaw_offset_of: np.ndarray | None) -> pd.DataFrame:
     """Per-frame truth: camera position and attitude, body attitude, track [deg, m]; the unit's yaw origin."""
     r_e, v_e = _ecef_track(fine)
@@ -263,8 +328,13 @@ def _frame_truth(cfg: SimConfig, fine: Trajectory, fine_time: np.ndarray, frame_
 
 def simulate(cfg: SimConfig) -> SimulatedFlight:
     """Simulate a flight: truth, IMU, unit outputs, GNSS, exposures and the POS table (vectorised)."""
+    if isinstance(cfg.plan, DronePlan):
+        # imported here: the drone's assembly builds on this module's SimConfig and SimulatedFlight
+        from georef.sim.drone_flight import simulate_drone
+
+        return simulate_drone(cfg)
     rng = np.random.default_rng(cfg.seed)
-    fine_rate, oversample = _fine_rate(cfg.pos_rate_hz)
+    fine_rate, oversample = fine_grid_rate(cfg.pos_rate_hz)
     fine = vehicle_trajectory(cfg.plan, float(fine_rate))
     fine_time = cfg.start_utc_s + np.arange(len(fine.time)) / fine_rate
     first = int(round(cfg.first_row_offset_s * fine_rate))
@@ -279,6 +349,9 @@ def simulate(cfg: SimConfig) -> SimulatedFlight:
                                                      accel_turn_on=cfg.accel_bias_mps2,
                                                      gyro_scale=np.asarray(cfg.gyro_scale_ppm) * 1e-6,
                                                      accel_scale=np.asarray(cfg.accel_scale_ppm) * 1e-6)
+    temperature = None
+    if cfg.thermal is not None:
+        temperature = add_thermal_bias(cfg.thermal, row_time - cfg.start_utc_s, gyro, accel, gyro_bias, accel_bias)
     unit = _unit_outputs(cfg, nav, accel - nav.f_ib_b, rng) if cfg.unit is not None else None
     fixes, held = _gnss(cfg, fine, fine_rate, row_time, rng)
 
@@ -291,6 +364,7 @@ def simulate(cfg: SimConfig) -> SimulatedFlight:
             trig[block] = ((cfg.start_utc_s + quirk - 1) % 86400) * 100 + 1
 
     has_fix = held >= 0
+    imu_temp = 35.0 + 0.002 * (row_time - row_time[0]) if temperature is None else temperature
     hold = np.where(has_fix, held, 0)
     earth_b = np.einsum("nji,nj->ni", nav.C_b_n, earth_rate_n(nav.lat))
     n = len(rows)
@@ -305,7 +379,7 @@ def simulate(cfg: SimConfig) -> SimulatedFlight:
         "IOMG_Z": np.degrees(gyro[:, 2] - earth_b[:, 2]),
         "VELX": np.zeros(n), "ODO_TICKS": np.zeros(n, int), "MAGNMTR": np.zeros(n, int),
         "TRIG_TIME": trig, "SAMPL_TIME": micro,
-        "IMU_TEMP": 35.0 + 0.002 * (row_time - row_time[0]), "SENS_TEMP": 33.0 + 0.002 * (row_time - row_time[0]),
+        "IMU_TEMP": imu_temp, "SENS_TEMP": 33.0 + 0.002 * (row_time - row_time[0]),
         "LONGITUDE": np.where(has_fix, fixes["lon"].to_numpy()[hold], 0.0),
         "LATITUDE": np.where(has_fix, fixes["lat"].to_numpy()[hold], 0.0),
         "ALTITUDE": np.where(has_fix, fixes["height"].to_numpy()[hold], 0.0),
@@ -319,21 +393,23 @@ def simulate(cfg: SimConfig) -> SimulatedFlight:
     frame_time = np.round((nominal + jitter) * 1000.0) / 1000.0
     exposures = pd.DataFrame({"frame": np.arange(1, len(frame_time) + 1), "time": frame_time})
     offset_at_frame = np.interp(frame_time, row_time, unit["yaw_offset"]) if unit is not None else None
-    truth = _frame_truth(cfg, fine, fine_time, frame_time, offset_at_frame)
+    truth = frame_truth(cfg, fine, fine_time, frame_time, offset_at_frame)
     truth.insert(0, "frame", exposures["frame"].to_numpy())
     mag = autopilot = None
     if cfg.magnetometer is not None:
-        mag = magnetometer(nav.C_b_n, cfg.magnetometer, np.random.default_rng((cfg.seed, _MAG_STREAM)))
+        mag = magnetometer(nav.C_b_n, cfg.magnetometer, np.random.default_rng((cfg.seed, MAG_STREAM)))
     if cfg.autopilot is not None:
         autopilot = autopilot_attitude(row_time, nav.roll, nav.pitch, nav.yaw, cfg.autopilot,
-                                       np.random.default_rng((cfg.seed, _AUTOPILOT_STREAM)))
+                                       np.random.default_rng((cfg.seed, AUTOPILOT_STREAM)))
     return SimulatedFlight(config=cfg, pos=pos, exposures=exposures, truth_frames=truth, truth_nav=nav,
                            gnss_fixes=fixes, gyro_bias=gyro_bias, accel_bias=accel_bias, mag=mag,
-                           autopilot_rpy=autopilot)
+                           autopilot_rpy=autopilot, imu_temperature_degc=temperature)
 
 
-def vehicle_trajectory(plan: FlightPlan | MulticopterPlan | CarPlan, fine_rate_hz: float) -> Trajectory:
+def vehicle_trajectory(plan: FlightPlan | MulticopterPlan | CarPlan | DronePlan, fine_rate_hz: float) -> Trajectory:
     """The truth and ideal IMU of the vehicle the plan's type names, on a ``fine_rate_hz`` [Hz] grid."""
+    if isinstance(plan, DronePlan):
+        return fly_drone(plan, fine_rate_hz).trajectory
     if isinstance(plan, MulticopterPlan):
         return fly_multicopter(plan, fine_rate_hz)
     if isinstance(plan, CarPlan):

@@ -106,8 +106,10 @@ class MulticopterSchedule:
     rotate_from_s: float | None = None
 
 
-def _add(profile: tuple[list, list, list], start: float, duration: float, level: object) -> float:
-    """Append a transition that starts no earlier than the previous one ends; returns its end [s]."""
+def add_transition(profile: tuple[list, list, list], start: float, duration: float, level: object) -> float:
+    """Append a transition (start [s], duration [s], level) to a profile of
+    :func:`georef.sim.profiles.piecewise_smooth`, starting no earlier than the previous one ends; returns its end
+    [s]."""
     starts, durations, levels = profile
     if starts:
         start = max(start, starts[-1] + durations[-1])
@@ -117,17 +119,20 @@ def _add(profile: tuple[list, list, list], start: float, duration: float, level:
     return start + duration
 
 
-def _climb(schedule: MulticopterSchedule, plan: MulticopterPlan, start: float, delta_h: float) -> None:
-    """Vertical-speed transitions for a height change [m] (up positive), starting at ``start`` [s] or later."""
+def add_climb(vertical: tuple[list, list, list], start: float, delta_h: float, max_climb_mps: float,
+              max_accel_mps2: float) -> float:
+    """Down-velocity transitions for a height change ``delta_h`` [m] (up positive), starting at ``start`` [s] or
+    later: a climb speed of at most ``max_climb_mps`` [m/s] reached and left at ``max_accel_mps2`` [m/s^2] peak.
+    Returns the end of the height change [s] (``start`` when there is none)."""
     if abs(delta_h) < 1e-9:
-        return
-    a_v = plan.max_vertical_accel_mps2
-    v_c = min(plan.max_climb_mps, np.sqrt(abs(delta_h) * a_v / SMOOTHERSTEP_PEAK_SLOPE))
+        return start
+    a_v = max_accel_mps2
+    v_c = min(max_climb_mps, np.sqrt(abs(delta_h) * a_v / SMOOTHERSTEP_PEAK_SLOPE))
     ramp = SMOOTHERSTEP_PEAK_SLOPE * v_c / a_v
     hold = (abs(delta_h) - v_c * ramp) / v_c  # each ramp covers v_c * ramp / 2
     v_down = -np.sign(delta_h) * v_c
-    end = _add(schedule.vertical, start, ramp, v_down)
-    _add(schedule.vertical, end + max(hold, 0.0), ramp, 0.0)
+    end = add_transition(vertical, start, ramp, v_down)
+    return add_transition(vertical, end + max(hold, 0.0), ramp, 0.0)
 
 
 def multicopter_schedule(plan: MulticopterPlan) -> MulticopterSchedule:
@@ -144,18 +149,18 @@ def multicopter_schedule(plan: MulticopterPlan) -> MulticopterSchedule:
     while t < plan.duration_s:
         direction = np.radians(plan.leg_directions_deg[k % n_legs])
         v_target = plan.speed_mps * np.array([np.cos(direction), np.sin(direction)])
-        end_v = _add(sched.velocity, t, transition_time(v_target - v_prev, plan.max_accel_mps2), v_target)
+        end_v = add_transition(sched.velocity, t, transition_time(v_target - v_prev, plan.max_accel_mps2), v_target)
         end_yaw = end_v
         if plan.heading_policy == "track":
             turn = float(wrap_pi(direction - yaw_prev))
             if abs(turn) > 1e-9:
-                end_yaw = _add(sched.yaw, t, transition_time(turn, np.radians(plan.max_yaw_rate_deg_s)),
+                end_yaw = add_transition(sched.yaw, t, transition_time(turn, np.radians(plan.max_yaw_rate_deg_s)),
                                yaw_prev + turn)
                 yaw_prev += turn
         elif plan.heading_policy == "rotating" and sched.rotate_from_s is None:
             sched.rotate_from_s = t
         height = plan.leg_heights_m[k % n_legs]
-        _climb(sched, plan, t, height - h_prev)
+        add_climb(sched.vertical, t, height - h_prev, plan.max_climb_mps, plan.max_vertical_accel_mps2)
         h_prev = height
         cruise_start = max(end_v, end_yaw)
         cruise_end = cruise_start + plan.leg_length_m / plan.speed_mps
@@ -164,13 +169,13 @@ def multicopter_schedule(plan: MulticopterPlan) -> MulticopterSchedule:
         t = cruise_end
         v_prev = v_target
         if k == plan.second_hover_after_leg:
-            t = _add(sched.velocity, t, transition_time(v_prev, plan.max_accel_mps2), np.zeros(2))
+            t = add_transition(sched.velocity, t, transition_time(v_prev, plan.max_accel_mps2), np.zeros(2))
             v_prev = np.zeros(2)
             length = plan.second_hover_s
             if plan.heading_policy == "fixed" and plan.second_hover_yaw_turn_deg:
                 turn = np.radians(plan.second_hover_yaw_turn_deg)
                 turn_time = transition_time(turn, np.radians(plan.max_yaw_rate_deg_s))
-                _add(sched.yaw, t + 1.0, turn_time, held + turn)
+                add_transition(sched.yaw, t + 1.0, turn_time, held + turn)
                 held += turn
                 yaw_prev = held
                 length = max(length, turn_time + 2.0)
@@ -192,8 +197,8 @@ def fly_multicopter(plan: MulticopterPlan, fine_rate_hz: float) -> Trajectory:
     t = np.arange(n) / fine_rate_hz
     sched = multicopter_schedule(plan)
 
-    v_h, a_h, _ = piecewise_smooth(t, np.zeros(2), *_arrays(sched.velocity, (0, 2)))
-    v_d, a_d, _ = piecewise_smooth(t, 0.0, *_arrays(sched.vertical, (0,)))
+    v_h, a_h, _ = piecewise_smooth(t, np.zeros(2), *profile_arrays(sched.velocity, (0, 2)))
+    v_d, a_d, _ = piecewise_smooth(t, 0.0, *profile_arrays(sched.vertical, (0,)))
     v_n = np.column_stack([v_h, v_d])
     a_n = np.column_stack([a_h, a_d])
     # position-hold wander: two low-frequency components per axis (N, E, D; D at half the amplitude)
@@ -205,7 +210,7 @@ def fly_multicopter(plan: MulticopterPlan, fine_rate_hz: float) -> Trajectory:
     lat, lon, height = integrate_position(t, v_n, np.radians(plan.start_lat_deg), np.radians(plan.start_lon_deg),
                                           plan.start_height_m + plan.hover_height_m)
 
-    yaw, _, _ = piecewise_smooth(t, np.radians(plan.heading_deg), *_arrays(sched.yaw, (0,)))
+    yaw, _, _ = piecewise_smooth(t, np.radians(plan.heading_deg), *profile_arrays(sched.yaw, (0,)))
     if sched.rotate_from_s is not None:
         ramp, _, _ = piecewise_smooth(t, 0.0, [sched.rotate_from_s], [2.0], [np.radians(plan.rotate_rate_deg_s)])
         yaw = yaw + cumulative_trapezoid(ramp, t, initial=0.0)
@@ -217,7 +222,9 @@ def fly_multicopter(plan: MulticopterPlan, fine_rate_hz: float) -> Trajectory:
     return imu_from_kinematics(t, lat, lon, height, v_n, a_n, roll, pitch, yaw)
 
 
-def _arrays(profile: tuple[list, list, list], level_shape: tuple[int, ...]) -> tuple[np.ndarray, ...]:
+def profile_arrays(profile: tuple[list, list, list], level_shape: tuple[int, ...]) -> tuple[np.ndarray, ...]:
+    """A profile's (starts, durations, levels) as arrays for :func:`georef.sim.profiles.piecewise_smooth`;
+    ``level_shape`` is the shape of the empty levels array of a profile without transitions."""
     starts, durations, levels = profile
     if not starts:
         return np.empty(0), np.empty(0), np.empty(level_shape)

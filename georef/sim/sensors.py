@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import butter, lfilter, sosfilt
 
-from georef.frames import euler_to_dcm, wrap_pi
+from georef.frames import dcm_to_euler, euler_to_dcm, wrap_pi
 from georef.imu_errors import ImuErrorModel
 
 VIBRATION_KINDS = ("none", "rotor", "white", "narrowband")
@@ -132,9 +132,12 @@ class GnssModel:
 class MagnetometerModel:
     """A three-axis magnetometer in body axes (x forward, y right, z down), microtesla.
 
-    ``m_b = C_n_b m_n + hard_iron + noise``: a constant Earth field ``m_n`` of ``field_ut`` [uT] with
+    ``m_b = C_n_b m_n + hard_iron + motor + noise``: a constant Earth field ``m_n`` of ``field_ut`` [uT] with
     ``inclination_deg`` (dip, positive down) and ``declination_deg`` (east of true north), a constant
     hard-iron offset [uT] per body axis and white noise [uT, 1 sigma per sample]. Defaults: central Croatia.
+    ``motor_interference_ut`` [uT, body axes]: the field of the motor currents at hover thrust, scaled by the
+    motor load (current ~ thrust^1.5, 0 with the motors off); only a vehicle with motors (the drone) has a load,
+    so it must stay zero for the others.
     """
 
     field_ut: float = 48.0
@@ -142,6 +145,7 @@ class MagnetometerModel:
     declination_deg: float = 4.0
     hard_iron_ut: tuple[float, float, float] = (1.5, -0.8, 0.6)
     noise_ut: float = 0.3
+    motor_interference_ut: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def field_n(self) -> np.ndarray:
         """Earth field in NED [uT]: ``Rz(declination) Ry(-inclination) [F, 0, 0]``."""
@@ -157,6 +161,9 @@ class AutopilotModel:
     (magnetic model, declination, hard iron) plus a Gauss-Markov error (``yaw_error_deg``,
     ``yaw_error_corr_s``). Roll and pitch carry a Gauss-Markov error (``level_error_deg``,
     ``level_error_corr_s``). All three have white noise ``noise_deg``. Degrees and seconds.
+    ``mounting_offset_deg`` (roll, pitch, yaw): the constant rotation of the autopilot's own frame from the IMU
+    body frame (its board mounting and level trim, up to 1-2 deg on a real drone): it reports the attitude of
+    ``C_b_n C_a_b`` with ``C_a_b = euler_to_dcm(*offset)``.
     """
 
     yaw_bias_sigma_deg: float = 3.0
@@ -165,6 +172,7 @@ class AutopilotModel:
     level_error_deg: float = 0.3
     level_error_corr_s: float = 30.0
     noise_deg: float = 0.05
+    mounting_offset_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 def gauss_markov(n: int, dt: float, sigma: float, corr_time: float, rng: np.random.Generator,
@@ -259,18 +267,32 @@ def add_vibration(t: np.ndarray, vibration: VibrationModel, rng: np.random.Gener
     accel += rows[:, 3:] * accel_amp
 
 
-def magnetometer(C_b_n: np.ndarray, model: MagnetometerModel, rng: np.random.Generator) -> np.ndarray:
-    """Magnetometer samples [uT] (N, 3), body axes, for attitudes ``C_b_n`` (N, 3, 3)."""
+def magnetometer(C_b_n: np.ndarray, model: MagnetometerModel, rng: np.random.Generator,
+                 motor_load: np.ndarray | None = None) -> np.ndarray:
+    """Magnetometer samples [uT] (N, 3), body axes, for attitudes ``C_b_n`` (N, 3, 3).
+
+    ``motor_load`` (N,) [-]: motor current / current at hover (0 with the motors off) for the model's
+    ``motor_interference_ut``; None for a vehicle without motors, whose model must then have none.
+    """
     field_b = np.einsum("nji,j->ni", C_b_n, model.field_n())
-    return field_b + np.asarray(model.hard_iron_ut, float) + model.noise_ut * rng.standard_normal(field_b.shape)
+    measured = field_b + np.asarray(model.hard_iron_ut, float) + model.noise_ut * rng.standard_normal(field_b.shape)
+    if motor_load is None:
+        if any(model.motor_interference_ut):
+            raise ValueError("magnetometer motor interference needs a vehicle with motors (the drone)")
+        return measured
+    return measured + np.asarray(motor_load, float)[:, None] * np.asarray(model.motor_interference_ut, float)
 
 
 def autopilot_attitude(t: np.ndarray, roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray, model: AutopilotModel,
                        rng: np.random.Generator) -> np.ndarray:
     """The autopilot's roll, pitch, yaw [rad] (N, 3) at times ``t`` [s] from the true angles [rad].
 
-    Errors are added to the Euler angles; yaw is wrapped to (-pi, pi].
+    The mounting offset turns the attitude first (when there is one); errors are added to the Euler angles;
+    yaw is wrapped to (-pi, pi].
     """
+    if any(model.mounting_offset_deg):
+        C_a_b = euler_to_dcm(*np.radians(np.asarray(model.mounting_offset_deg, float)))
+        roll, pitch, yaw = dcm_to_euler(euler_to_dcm(roll, pitch, yaw) @ C_a_b)
     n = len(t)
     dt = float(np.median(np.diff(t)))
     level = gauss_markov(n, dt, np.radians(model.level_error_deg), model.level_error_corr_s, rng, 2)
