@@ -100,7 +100,8 @@ KERNELS: dict[str, KernelSpec] = {
     "ins": KernelSpec(
         "georef.fusion.ins_kernel",
         {"ekf_forward": KernelFunction(
-            args=(F1, F2, F2, INT, F1, F2, I1, F1, F2, F2, F1, F2, INT, FLOAT, INT, FLOAT, FLOAT, F2, BOOL, BOOL, F2),
+            args=(F1, F2, F2, INT, F1, F2, I1, F1, F2, F2, F1, F2, INT, FLOAT, INT, FLOAT, FLOAT, F2, BOOL, BOOL, B1,
+                  F2),
             returns=(I1, F1, F3, F3, F3, F2, I1, F2, F3, F3, F1, I1, I1, I1, F2, F3, I1, F2, I1, F2)),
          "rts_backward": KernelFunction(
             args=(F1, F3, F3, F3, F2, B1, B1, F1, I1, F2, F3, F2, I1, I1, I1, F2, F3, I1, F2, BOOL),
@@ -141,6 +142,11 @@ KERNELS: dict[str, KernelSpec] = {
     "table": KernelSpec(
         "georef.io.table_kernel",
         {"parse_block": KernelFunction(args=(U1, INT, INT, INT, I1, I1, INT), returns=(F2, I2, I2, I1))}),
+    # the message walk of a binary DataFlash log: bytes, message length per type (updated), bytes to walk ->
+    # message offsets and types, skipped runs' offsets and lengths
+    "dataflash": KernelSpec(
+        "georef.io.logs.dataflash_kernel",
+        {"scan": KernelFunction(args=(U1, I1, INT), returns=(I1, I1, I1, I1))}),
     "tilt": KernelSpec(
         "georef.attitude.tilt",
         {"complementary": KernelFunction(args=(F1, F2, F1, F1, FLOAT), returns=(F2,)),

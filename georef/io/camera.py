@@ -24,6 +24,10 @@ from georef.io.table import Source, Table, peek_header, read_table, snapshot, so
 CAMERA_ROLES: dict[str, str] = {"number": "Number", "time": "Time", "milliseconds": "Milliseconds"}
 #: a header column that marks the camera's raw log (local clock ``hh:mm:ss``) rather than Kamera.txt
 RAW_LOG_COLUMN = "Exposition"
+#: 1-sigma [s] of an exposure time that is a camera's feedback (hot shoe, capture message), and of one that is the
+#: command to trigger: a camera exposes some 0.05-0.3 s after it, unknown unless measured
+FEEDBACK_TIME_SIGMA = 0.002
+TRIGGER_TIME_SIGMA = 0.1
 #: the flag of a frame whose line was cut short (followed by what is missing)
 FLAG_INCOMPLETE = "exposure line cut short"
 
@@ -33,6 +37,7 @@ class Exposures:
     """Exposure events: frame id as written in the file, time [UTC s of day], file line of each.
 
     ``problem`` holds, per row, why it has no usable time ("" when it has one); such rows have ``time`` NaN.
+    ``time_sigma`` [s] per row: how well the time is the exposure's (None: exactly).
     """
 
     path: Path
@@ -41,6 +46,8 @@ class Exposures:
     lines: np.ndarray
     notices: list[InputNotice] = field(default_factory=list)
     problem: np.ndarray | None = None
+    #: per row, the 1-sigma [s] of its time as the exposure's (a trigger command's latency is unknown); None: 0
+    time_sigma: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.frame)

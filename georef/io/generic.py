@@ -28,6 +28,7 @@ from georef.fusion.solution import NavSolution
 from georef.io.atomic import atomic_write
 from georef.io.errors import InputError
 from georef.io.plausibility import GENERIC_LIMITS, check_gnss_jumps, check_ranges
+from georef.io.pos import PosLog
 from georef.io.table import read_table
 
 IMU_COLUMNS = ("time", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
@@ -80,6 +81,38 @@ def read_marg_csv(path: Path | str) -> tuple[np.ndarray, np.ndarray, np.ndarray,
         raise InputError(table.path, 1, missing, "magnetometer columns come as mag_x, mag_y, mag_z together")
     mag = np.stack([c[name] for name in MAG_COLUMNS], -1) if present else None
     return c["time"], gyro, accel, mag, table.lines
+
+
+def read_generic_log(imu_path: Path | str, gnss_path: Path | str) -> PosLog:
+    """``imu.csv`` and ``gnss.csv`` as the pipeline's typed input (:class:`~georef.io.pos.PosLog`; ``data`` in
+    POS.txt's units, deg/s and m/s^2), with the magnetometer and the autopilot's roll, pitch, yaw on the rows when
+    imu.csv has them. imu.csv is read once."""
+    from georef.align import TimeRepairReport
+
+    wanted = dict.fromkeys((*IMU_COLUMNS, *MAG_COLUMNS, "roll", "pitch", AUTOPILOT_YAW), "float")
+    table = read_table(imu_path, wanted, required=set(IMU_COLUMNS))
+    c = table.columns
+    check_increasing(table.path, c["time"], table.lines, table.names.get("time", "time"))
+    check_ranges(table.path, c, table.lines, table.names, GENERIC_LIMITS)
+    same = np.flatnonzero(np.diff(c["time"]) == 0)
+    if len(same):
+        raise InputError(table.path, int(table.lines[same[0] + 1]), "time", "repeated time stamp")
+    present = [name for name in MAG_COLUMNS if name in c]
+    if present and len(present) < 3:
+        missing = [name for name in MAG_COLUMNS if name not in c][0]
+        raise InputError(table.path, 1, missing, "magnetometer columns come as mag_x, mag_y, mag_z together")
+    mag = np.stack([c[name] for name in MAG_COLUMNS], -1) if present else None
+    rpy = None
+    if AUTOPILOT_YAW in c:
+        rpy = np.radians(np.stack([c.get("roll", np.full(len(table), np.nan)),
+                                   c.get("pitch", np.full(len(table), np.nan)), c[AUTOPILOT_YAW]], -1))
+    data = {f"gyro_{a}": np.degrees(c[f"gyro_{a}"]) for a in "xyz"}
+    data.update({f"acc_{a}": c[f"acc_{a}"] for a in "xyz"})
+    names = {role: table.names.get(role, role) for role in data}
+    fixes = read_gnss_csv(gnss_path)
+    return PosLog(path=table.path, time=c["time"], data=data, lines=table.lines, gnss=fixes,
+                  time_repairs=TimeRepairReport(), notices=[*table.notices, *fixes.notices], column_names=names,
+                  kind="imu.csv + gnss.csv", mag=mag, autopilot_rpy=rpy)
 
 
 def read_gnss_csv(path: Path | str) -> GnssEpochs:

@@ -50,7 +50,8 @@ BASE_ROLES = ("trig_time", "sampl_time", "lat", "lon", "alt")
 
 @dataclass
 class PosLog:
-    """A POS log on the continuous time scale.
+    """A POS log on the continuous time scale (or an autopilot log's IMU and GNSS handed over in the same form,
+    :func:`georef.io.logs.flightlog.to_pos_log`).
 
     ``time`` [UTC s of day, continuous across midnight]; ``data[role]`` in the file's units (see
     :data:`POS_ROLES`); ``lines`` the 1-based file line of every row; ``gnss`` the extracted fixes.
@@ -66,6 +67,13 @@ class PosLog:
     column_names: dict[str, str] = field(default_factory=dict)
     #: separator and encoding the file was read with
     dialect: Dialect | None = None
+    #: what the rows came from, for messages and the report: "POS.txt", "ArduPilot DataFlash log (binary)", ...
+    kind: str = "POS.txt"
+    #: a magnetometer on the rows (N, 3) [any unit, body axes], when the log has one
+    mag: np.ndarray | None = None
+    #: the autopilot's own roll, pitch, yaw on the rows (N, 3) [rad, ZYX to NED, yaw from true north], when logged:
+    #: a heading source of its own and a comparison, not the POS unit's attitude (whose yaw origin is unknown)
+    autopilot_rpy: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.time)

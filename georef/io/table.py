@@ -273,11 +273,56 @@ def snapshot(source: Source) -> Path | InMemory:
     return InMemory(path, data)
 
 
+#: the first bytes of a gzip stream
+GZIP_MAGIC = b"\x1f\x8b"
+#: a gunzipped input is held in memory up to this size, then spills to a temporary file [bytes]
+_GUNZIP_IN_MEMORY = 64 << 20
+
+
+def _gunzipped(path: Path, handle: BinaryIO) -> BinaryIO:
+    """A seekable handle on the decompressed content of the gzip stream ``handle`` (closed here): in memory up to
+    _GUNZIP_IN_MEMORY, in an unnamed temporary file beyond, so memory stays bounded whatever the size."""
+    import gzip
+    import shutil
+    import tempfile
+    import zlib
+
+    out = tempfile.SpooledTemporaryFile(max_size=_GUNZIP_IN_MEMORY)  # noqa: SIM115 - returned open
+    try:
+        with handle, gzip.GzipFile(fileobj=handle) as stream:
+            shutil.copyfileobj(stream, out, 1 << 20)
+    except (OSError, EOFError, zlib.error) as exc:
+        out.close()
+        raise InputError(path, None, None, f"a gzip file that cannot be decompressed: {exc}") from None
+    if out.tell() == 0:
+        out.close()
+        raise InputError(path, 1, None, "the gzip file holds nothing (no header line)")
+    out.seek(0)
+    return out  # type: ignore[return-value]
+
+
 def _open_source(source: Source) -> BinaryIO:
-    """A seekable binary handle on ``source``; folders, devices, sockets and empty files are refused.
+    """A seekable binary handle on ``source`` (a gzip file's decompressed content); folders, devices, sockets and
+    empty files are refused.
 
     A named pipe (FIFO, e.g. ``<(zcat POS.txt.gz)``) can be read only once, so it is read into memory.
     """
+    handle = _open_raw(source)
+    head = handle.read(2)
+    handle.seek(0)
+    if head == GZIP_MAGIC:
+        return _gunzipped(source_path(source), handle)
+    return handle
+
+
+def read_bytes(source: Source) -> bytes:
+    """All the bytes of ``source`` (decompressed when it is gzip), with :func:`_open_source`'s refusals."""
+    with _open_source(source) as handle:
+        return handle.read()
+
+
+def _open_raw(source: Source) -> BinaryIO:
+    """A seekable binary handle on ``source`` as it is (see :func:`_open_source`)."""
     if isinstance(source, InMemory):
         if not source.data:
             raise InputError(source.path, 1, None, "the file is empty (no header line)")
