@@ -164,10 +164,15 @@ class GnssSection(_Section):
     #: [s] 1-sigma of the given ``latency`` as the graph's prior on its GNSS time-offset variable. None: 0.01 s
     #: when a latency is given, else zero with 0.002 s (a PPS-synchronised log; set 0.5 to estimate it freely)
     latency_sigma: float | None = _toml("gnss_latency_sigma", None)
+    #: [s] correlation time of the fixes' errors (a receiver's position wanders over tens of seconds); the
+    #: full-state filters carry that wander as a first-order Gauss-Markov state and fit its size. 0: white errors
+    correlation_time: float = _toml("gnss_correlation_time", 60.0)
 
     def __post_init__(self) -> None:
         self._check_types()
         self._triple("sigma", "m")
+        if not self.correlation_time >= 0:
+            self._fail("correlation_time", f"must be 0 (white errors) or positive seconds, got {self.correlation_time}")
         if min(self.sigma) <= 0:
             self._fail("sigma", f"must be positive metres, got {self.sigma}")
         self._positive("rate_hz", "Hz")
@@ -183,9 +188,14 @@ class CameraSection(_Section):
     utc_offset: float | None = _toml("camera_utc_offset", None)
     #: camera trigger latency [s]: the exposure happened this long after its logged time
     time_offset: float = _toml("camera_time_offset", 0.0)
+    #: [s] 1-sigma of the exposure times (after the latency), for every frame; None: each source's own (0 for
+    #: Kamera.txt, the camera's feedback of an autopilot log a few ms, its trigger commands and events.csv 0.1 s)
+    time_sigma: float | None = _toml("camera_time_sigma", None)
 
     def __post_init__(self) -> None:
         self._check_types()
+        if self.time_sigma is not None and not self.time_sigma >= 0:
+            self._fail("time_sigma", f"must be 0 or positive seconds, got {self.time_sigma}")
 
 
 @dataclass(frozen=True)
@@ -602,6 +612,20 @@ def load_config(path: Path | str, base: ProcessingConfig | None = None) -> Proce
     except ConfigValueError as exc:
         raise _error(path, text, exc.key, str(exc)) from None
     return replace(cfg, **sections)
+
+
+def configured_keys(paths: list[Path] | list[str] | Path | str | None) -> set[str]:
+    """The flight.toml keys the files ``paths`` set (the files are read by :func:`load_configs` first, which
+    locates every error)."""
+    if paths is None:
+        return set()
+    keys: set[str] = set()
+    for path in [paths] if isinstance(paths, str | Path) else paths:
+        document = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        for content in document.values():
+            if isinstance(content, dict):
+                keys.update(content)
+    return keys
 
 
 def load_configs(paths: list[Path] | list[str] | Path | str | None) -> ProcessingConfig:

@@ -143,6 +143,17 @@ def camera_eo_columns(exposures: Exposures, states: ExposureStates, gnss: GnssEp
             euler_sigma = states.att_sigma[inside]
             att_cov_n = np.einsum("ni,ij->nij", att_var, np.eye(3))
         pos_var = states.pos_var_n[inside] + lever_var
+        time_sigma = None if exposures.time_sigma is None else np.asarray(exposures.time_sigma, float)[inside]
+        if time_sigma is not None and states.omega_n is not None:
+            # an exposure time known to sigma_t moves the camera by its velocity (the IMU's plus omega x lever) times
+            # sigma_t and turns it by omega sigma_t, independently of the navigation errors: the variances add
+            omega_n = states.omega_n[inside]
+            v_cam = np.einsum("nij,nj->ni", C_e_n(lat_i, lon_i), states.v_e[inside]) + np.cross(omega_n, lever_n)
+            pos_var = pos_var + (v_cam * time_sigma[:, None]) ** 2
+            turn = omega_n * time_sigma[:, None]
+            att_cov_n = att_cov_n + np.einsum("ni,nj->nij", turn, turn)
+            turn_euler = np.einsum("nij,nj->ni", euler_error_jacobian(roll, pitch, yaw), turn)
+            euler_sigma = np.sqrt(euler_sigma**2 + turn_euler**2)
         # a negative or missing variance (a numerically broken smoother) gives no sigma and a flag, never a NaN
         # that looks like a number was attempted
         pos_sigma = np.sqrt(np.where(pos_var >= 0.0, pos_var, np.nan))

@@ -16,6 +16,9 @@ import numpy as np
 from georef.frames.rotations import attitude_at
 from georef.fusion.solution import NavSolution
 
+#: half the span [s] over which the angular velocity at an exposure is read off the attitudes
+RATE_STEP_S = 0.05
+
 
 @dataclass
 class ExposureStates:
@@ -29,6 +32,8 @@ class ExposureStates:
     pos_var_n: np.ndarray
     att_sigma: np.ndarray
     att_cov_n: np.ndarray | None = None
+    #: the body's angular velocity in NED [rad/s] (K, 3), for the share of an uncertain exposure time
+    omega_n: np.ndarray | None = None
 
 
 def hermite(t: np.ndarray, t0: np.ndarray, t1: np.ndarray, p0: np.ndarray, p1: np.ndarray,
@@ -69,4 +74,20 @@ def interpolate_to_exposures(nav: NavSolution, times: np.ndarray) -> ExposureSta
     if att_cov is not None:
         att_cov[inside] = (1 - w)[:, :, None] * nav.att_cov_n[i0] + w[:, :, None] * nav.att_cov_n[i1]
     C_b_n[inside] = attitude_at(nav.time[rows], nav.roll[rows], nav.pitch[rows], nav.yaw[rows], ti)
-    return ExposureStates(times, inside, r_e, v_e, C_b_n, pos_var, att_sigma, att_cov)
+    omega_n = np.full((k, 3), np.nan)
+    omega_n[inside] = _angular_velocity_n(nav, rows, ti)
+    return ExposureStates(times, inside, r_e, v_e, C_b_n, pos_var, att_sigma, att_cov, omega_n)
+
+
+def _angular_velocity_n(nav: NavSolution, rows: np.ndarray, t: np.ndarray, h: float = RATE_STEP_S) -> np.ndarray:
+    """NED angular velocity [rad/s] (K, 3) at times ``t`` from the attitudes ``h`` [s] either side:
+    ``C(t+h) C(t-h)^T = exp([ω 2h x])``."""
+    t_valid = nav.time[rows]
+    before = np.clip(t - h, t_valid[0], t_valid[-1])
+    after = np.clip(t + h, t_valid[0], t_valid[-1])
+    C0 = attitude_at(t_valid, nav.roll[rows], nav.pitch[rows], nav.yaw[rows], before)
+    C1 = attitude_at(t_valid, nav.roll[rows], nav.pitch[rows], nav.yaw[rows], after)
+    D = np.einsum("nij,nkj->nik", C1, C0)
+    rotvec = 0.5 * np.stack([D[:, 2, 1] - D[:, 1, 2], D[:, 0, 2] - D[:, 2, 0], D[:, 1, 0] - D[:, 0, 1]], -1)
+    span = np.maximum(after - before, 1e-6)
+    return rotvec / span[:, None]

@@ -91,6 +91,17 @@ IMU_PRESETS: dict[str, ImuErrorModel] = {
         gyro_bias_corr_time_s=100.0, accel_vrw_mps_rt_h=0.12, accel_turn_on_bias_mg=30.0,
         accel_bias_instability_mg=0.2, accel_bias_corr_time_s=100.0,
     ),
+    # The IMU of an autopilot's flight controller (ArduPilot, PX4: InvenSense/TDK, Bosch parts) as its log holds
+    # it: the autopilot removes the gyro offsets it measures at boot (a tenth of a deg/s stays) and its accelerometer
+    # calibration leaves tens of mg; the board warms by 10-20 degC over the first minutes of a flight, and the
+    # biases follow (about 0.01-0.05 deg/s and 1-5 mg per degC; ICM-20602 datasheet: +-0.05 deg/s/degC zero-rate
+    # and +-1 mg/degC zero-g), which a Gauss-Markov process of that size and a few minutes describes; noise
+    # densities of about 0.005 deg/s/sqrt(Hz) and 100-200 ug/sqrt(Hz).
+    "autopilot": ImuErrorModel(
+        gyro_arw_deg_rt_h=0.3, gyro_turn_on_bias_deg_h=360.0, gyro_bias_instability_deg_h=720.0,
+        gyro_bias_corr_time_s=300.0, accel_vrw_mps_rt_h=0.1, accel_turn_on_bias_mg=50.0,
+        accel_bias_instability_mg=15.0, accel_bias_corr_time_s=300.0,
+    ),
     # Tactical-grade FOG IMU.
     "tactical-fog": ImuErrorModel(
         gyro_arw_deg_rt_h=0.02, gyro_turn_on_bias_deg_h=1.0, gyro_bias_instability_deg_h=0.3,
@@ -98,6 +109,22 @@ IMU_PRESETS: dict[str, ImuErrorModel] = {
         accel_bias_instability_mg=0.02, accel_bias_corr_time_s=1000.0,
     ),
 }
+
+
+#: which hardware each preset fits, in a line (``--help``)
+PRESET_FITS: dict[str, str] = {
+    "mems-ivru": "a survey POS unit's MEMS IMU (iMAR iVRU class; the default for POS.txt)",
+    "mems-consumer": "consumer MEMS at a steady temperature (warmed up or temperature-compensated)",
+    "consumer-phone": "a phone's or a cheap board's IMU without calibration (deg/s of gyro bias)",
+    "autopilot": "an autopilot's flight controller (ArduPilot, PX4) with its warm-up drift (the default for their "
+                 "logs)",
+    "tactical-fog": "a tactical-grade fibre-optic-gyro IMU",
+}
+
+
+def presets_help() -> str:
+    """Every preset with the hardware it fits, for a command's ``--help``."""
+    return "; ".join(f"{name}: {PRESET_FITS.get(name, '')}" for name in IMU_PRESETS)
 
 
 def imu_preset(name: str) -> ImuErrorModel:

@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -35,6 +36,7 @@ from georef.fusion.solution import NavSolution
 from georef.io.camera import Exposures
 from georef.io.camera import read_exposures as read_camera_exposures
 from georef.io.errors import GeorefError, InputNotice
+from georef.io.events import read_events
 from georef.io.image_names import ImageNames
 from georef.io.pos import PosLog, read_pos
 
@@ -44,6 +46,7 @@ if TYPE_CHECKING:
     import pandas as pd
 
     from georef.frames.heights import OutputFrames
+    from georef.io.logs.flightlog import FlightLog
 
 #: method -> (solver on a POS log, given the whole configuration and the campaign's calibration prior (graph
 #: only), the POS columns it needs); each solver hands its method only the sections that method reads
@@ -81,6 +84,8 @@ class ProcessResult:
     timings: dict[str, float] = field(default_factory=dict)
     #: the output CRS and heights (None: WGS 84 ellipsoidal only)
     frames: OutputFrames | None = None
+    #: the autopilot log the IMU and GNSS came from (its vehicle, clock, fix types, attitude), when one did
+    flight: FlightLog | None = None
     _frame: pd.DataFrame | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
@@ -122,7 +127,7 @@ class ProcessResult:
             "time_quirks_repaired": self.log.time_repairs.n_quirks,
             "method": self.nav.method,
         }
-        summary.update(solution_figures(self.nav, self.config.gnss))
+        summary.update(solution_figures(self.nav, self.config.gnss, self.log.gnss.sigma_neu))
         summary.update(geodesy_figures(self.frames, self.columns))
         return summary
 
@@ -161,16 +166,18 @@ def geodesy_figures(frames: OutputFrames | None, table: Mapping[str, object]) ->
             "geodesy_warnings": warnings}
 
 
-def solution_figures(nav: NavSolution, gnss: GnssSection) -> dict[str, object]:
+def solution_figures(nav: NavSolution, gnss: GnssSection, fix_sigma: np.ndarray | None = None) -> dict[str, object]:
     """What the full-state filters (``nav.diagnostics`` set) found, for summaries (empty for other methods):
 
     * ``heading_source``: where the initial heading came from;
     * ``unit_yaw_origin_deg``, ``unit_yaw_origin_sigma_deg``: the POS unit's yaw origin ``d`` (true yaw = unit
       yaw + d) at the filter's first row and its 1-sigma [deg], and ``unit_yaw_drift_deg_per_min`` its drift (a
       straight line fitted to the smoothed origin) [deg/min]: only when the unit's attitude aided the filter;
-    * ``gnss_sigma_fitted_m``: the GNSS sigmas north, east, up the fitted noise model uses [m]
-      (sqrt(r_scale) times the configured ``gnss.sigma``), ``vrw_m_s_sqrt_h`` the horizontal velocity random walk
-      [m/s/sqrt(h)], ``arw_deg_sqrt_h`` the angle random walk about north/east [deg/sqrt(h)];
+    * ``gnss_sigma_fitted_m``: the GNSS sigmas north, east, up the fitted noise model uses [m]: sqrt(r_scale)
+      times the median of the fixes' own sigmas ``fix_sigma`` (K, 3) [m] where the receiver gave them, else the
+      configured ``gnss.sigma`` (the white part, when a correlated part was fitted too), ``vrw_m_s_sqrt_h`` the
+      horizontal velocity random walk [m/s/sqrt(h)], ``arw_deg_sqrt_h`` the angle random walk about north/east
+      [deg/sqrt(h)];
     * ``ground_vehicle``: non-holonomic constraints applied;
     * ``graph_lever_arm_m``, ``graph_lever_arm_sigma_m`` (``--method graph`` only): the GNSS lever arm [m, body x
       forward, y right, z down] estimated with the trajectory, and its marginal 1-sigma; ``graph_time_offset_s``,
@@ -184,7 +191,7 @@ def solution_figures(nav: NavSolution, gnss: GnssSection) -> dict[str, object]:
     if diagnostics is None:
         return {}
     noise = diagnostics.noise
-    sigma = np.asarray(gnss.sigma, float)
+    sigma = np.asarray(gnss.sigma, float) if fix_sigma is None else np.median(np.asarray(fix_sigma, float), axis=0)
     scale = np.sqrt([noise.r_scale_h, noise.r_scale_h, noise.r_scale_v])
     figures: dict[str, object] = {
         "heading_source": str(diagnostics.heading_source),
@@ -250,6 +257,15 @@ def read_exposures(path: Path | str, camera: CameraSection, columns: CameraColum
     return read_camera_exposures(path, camera.utc_offset, columns.names)
 
 
+def _output_frames(cfg: ProcessingConfig) -> OutputFrames | None:
+    """The output CRS and heights, checked (grid installed, CRS known) before any input is read."""
+    if cfg.output.crs or cfg.output.height != "ellipsoidal":
+        from georef.frames.heights import OutputFrames
+
+        return OutputFrames(cfg.output.crs, cfg.output.height, cfg.output.vertical_crs)
+    return None
+
+
 def process(pos_path: Path | str, camera_path: Path | str, cfg: ProcessingConfig,
             progress: Progress | None = None, calibration_prior: tuple | None = None) -> ProcessResult:
     """Georeference every frame of ``camera_path`` from the POS log ``pos_path`` with ``cfg.processing.method``.
@@ -261,44 +277,51 @@ def process(pos_path: Path | str, camera_path: Path | str, cfg: ProcessingConfig
     if calibration_prior is not None and cfg.processing.method != "graph":
         raise ValueError("a calibration prior is a prior of the graph's variables: it needs method 'graph'")
     say = progress or (lambda _step: None)
-    timings: dict[str, float] = {}
-    solver, roles = SOLVERS[cfg.processing.method]
+    _, roles = SOLVERS[cfg.processing.method]
     # the output CRS, its geoid grid and the image names are checked before any reading or fusing
-    frames = None
-    if cfg.output.crs or cfg.output.height != "ellipsoidal":
-        from georef.frames.heights import OutputFrames
-
-        frames = OutputFrames(cfg.output.crs, cfg.output.height, cfg.output.vertical_crs)
+    frames = _output_frames(cfg)
     image_names = ImageNames.parse(cfg.output.image_names) if cfg.output.image_names else None
-
     start = time.perf_counter()
     say("reading POS log")
     log = read_pos(pos_path, required_roles=roles, column_names=cfg.pos_columns.names, gnss_rate_hz=cfg.gnss.rate_hz)
     say("reading exposures")
     exposures = read_exposures(camera_path, cfg.camera, cfg.camera_columns)
-    if cfg.camera.time_offset:
-        # trigger latency: each exposure happened camera_time_offset [s] after its logged time
-        exposures.time = exposures.time + float(cfg.camera.time_offset)
+    _shift_by_latency(exposures, cfg)
     exposures.time = to_reference_day(exposures.time, float(log.time[0]), float(log.time[-1]))
-    if image_names is not None:
-        image_names.names([str(f) for f in exposures.frame])  # a frame without a name fails before fusing
-    timings["read"] = time.perf_counter() - start
-
+    read_s = time.perf_counter() - start
     if len(log.gnss) < 2:
         names = log.column_names
         raise GeorefError(f"{log.path}: no usable GNSS fix (columns {names.get('lat')}, {names.get('lon')}, "
                           f"{names.get('alt')} stay 0 or hold a single value); every method needs GNSS positions")
+    return _georeference(log, exposures, cfg, frames, image_names, say, read_s, calibration_prior)
 
+
+def _shift_by_latency(exposures: Exposures, cfg: ProcessingConfig) -> None:
+    """Each exposure happened ``camera.time_offset`` [s] (the trigger latency) after its logged time, known to
+    ``camera.time_sigma`` [s] where that is set (else to each source's own sigma)."""
+    if cfg.camera.time_offset:
+        exposures.time = exposures.time + float(cfg.camera.time_offset)
+    if cfg.camera.time_sigma is not None:
+        exposures.time_sigma = np.full(len(exposures), float(cfg.camera.time_sigma))
+
+
+def _georeference(log: PosLog, exposures: Exposures, cfg: ProcessingConfig, frames: OutputFrames | None,
+                  image_names: ImageNames | None, say: Progress, read_s: float,
+                  calibration_prior: tuple | None = None, flight: FlightLog | None = None) -> ProcessResult:
+    """Fuse ``log`` with ``cfg.processing.method`` and make the EO table of ``exposures`` (on the log's time
+    scale): the path every input shares once it is read."""
+    timings: dict[str, float] = {"read": read_s}
+    if image_names is not None:
+        image_names.names([str(f) for f in exposures.frame])  # a frame without a name fails before fusing
     if cfg.processing.attitude_source == "imu":
         say("recomputing roll and pitch from the raw IMU")
         recompute_unit_tilt(log)
         cfg = cfg.updated(unit_aiding=False)
-
+    solver, _ = SOLVERS[cfg.processing.method]
     start = time.perf_counter()
     say(f"fusing ({cfg.processing.method})")
     nav = solver(log, cfg, calibration_prior)
     timings["fuse"] = time.perf_counter() - start
-
     start = time.perf_counter()
     say("interpolating to exposures")
     states = interpolate_to_exposures(nav, exposures.time)
@@ -306,4 +329,116 @@ def process(pos_path: Path | str, camera_path: Path | str, cfg: ProcessingConfig
                                 image_names=image_names)
     timings["interpolate"] = time.perf_counter() - start
     return ProcessResult(columns=columns, nav=nav, log=log, exposures=exposures, config=cfg,
-                         notices=[*log.notices, *exposures.notices], timings=timings, frames=frames)
+                         notices=[*log.notices, *exposures.notices], timings=timings, frames=frames, flight=flight)
+
+
+#: the flight.toml keys an autopilot log has defaults for: its GNSS lever arm parameters, and the IMU preset of
+#: an autopilot's flight controller
+LOG_DEFAULT_KEYS = ("lever_arm_gnss", "imu_preset")
+
+
+def _given_keys(cfg: ProcessingConfig) -> set[str]:
+    """Of LOG_DEFAULT_KEYS, those ``cfg`` holds at other than the defaults (a library caller's settings)."""
+    default = ProcessingConfig()
+    given = set()
+    if cfg.mounting.lever_arm_gnss != default.mounting.lever_arm_gnss:
+        given.add("lever_arm_gnss")
+    if cfg.ins.imu_preset != default.ins.imu_preset:
+        given.add("imu_preset")
+    return given
+
+
+def with_log_defaults(cfg: ProcessingConfig, flight: FlightLog, given: set[str] | None = None
+                      ) -> tuple[ProcessingConfig, list[InputNotice]]:
+    """``cfg`` with what an autopilot log says where the user said nothing (``given``: the flight.toml keys set on
+    the command line or in a configuration; None: those that differ from the defaults): the GNSS lever arm from
+    the autopilot's parameters and the ``autopilot`` IMU preset, each with a notice."""
+    given = _given_keys(cfg) if given is None else set(given)
+    notices: list[InputNotice] = []
+    if "lever_arm_gnss" not in given and flight.lever_arm is not None:
+        arm = flight.lever_arm.lever_arm
+        cfg = cfg.updated(lever_arm_gnss=arm)
+        notices.append(InputNotice(flight.path, [], flight.lever_arm.source, "GNSS lever arm "
+                                   f"{arm[0]:.3f}, {arm[1]:.3f}, {arm[2]:.3f} m taken from the autopilot's "
+                                   "parameters (--gnss-lever-arm overrides it)"))
+    if "imu_preset" not in given:
+        cfg = cfg.updated(imu_preset="autopilot")
+        notices.append(InputNotice(flight.path, [], None, "IMU preset 'autopilot' (a flight controller's MEMS IMU "
+                                   "with its thermal drift; --imu-preset overrides it)"))
+    return cfg, notices
+
+
+def process_log(log_path: Path | str, cfg: ProcessingConfig, events_path: Path | str | None = None,
+                progress: Progress | None = None, imu_instance: int | None = None,
+                given: set[str] | None = None) -> ProcessResult:
+    """Georeference every camera event of an autopilot log (ArduPilot ``.bin``/``.log``, PX4 ``.ulg``, each also
+    gzipped), or the exposures of ``events_path`` (events.csv, times on the log's UTC-of-day scale) instead.
+
+    The log's lever-arm parameters and the ``autopilot`` IMU preset stand where ``cfg`` leaves them at their
+    defaults (see :func:`with_log_defaults`; ``given`` names the keys the user set)."""
+    from georef.io.logs import read_flight_log
+
+    say = progress or (lambda _step: None)
+    _fusable_log(cfg)
+    start = time.perf_counter()
+    say("reading autopilot log")
+    flight = read_flight_log(log_path, imu_instance)
+    exposures, names = None, None
+    if events_path is not None:
+        say("reading exposures")
+        exposures, names = read_events(events_path)
+    return process_flight(flight, cfg, exposures, names, progress, given, time.perf_counter() - start)
+
+
+def _fusable_log(cfg: ProcessingConfig) -> None:
+    if cfg.processing.method == "axis":
+        raise GeorefError("--method axis needs a POS unit's own roll, pitch and yaw (POS.txt); an autopilot log "
+                          "is fused with rts, ekf or graph")
+
+
+def process_flight(flight: FlightLog, cfg: ProcessingConfig, exposures: Exposures | None = None,
+                   image_names: ImageNames | None = None, progress: Progress | None = None,
+                   given: set[str] | None = None, read_s: float = 0.0) -> ProcessResult:
+    """Georeference an autopilot log already read (:func:`georef.io.logs.read_flight_log`): its camera events,
+    or ``exposures`` (times on the log's UTC-of-day scale [s]) instead; as :func:`process_log` otherwise."""
+    from georef.io.logs.flightlog import to_pos_log
+
+    say = progress or (lambda _step: None)
+    _fusable_log(cfg)
+    start = time.perf_counter()
+    frames = _output_frames(cfg)
+    if cfg.output.image_names:
+        image_names = ImageNames.parse(cfg.output.image_names)
+    cfg, notices = with_log_defaults(cfg, flight, given)
+    log = to_pos_log(flight)
+    log.notices.extend(notices)
+    if exposures is None:
+        if flight.events is None:
+            raise GeorefError(f"{flight.path}: the log holds no camera events (ArduPilot CAM/TRIG, PX4 "
+                              "camera_capture/camera_trigger): give the exposures with --events events.csv")
+        exposures = copy.deepcopy(flight.events)
+    _shift_by_latency(exposures, cfg)
+    return _georeference(log, exposures, cfg, frames, image_names, say, read_s + time.perf_counter() - start,
+                         flight=flight)
+
+
+def process_generic(imu_path: Path | str, gnss_path: Path | str, events_path: Path | str, cfg: ProcessingConfig,
+                    progress: Progress | None = None) -> ProcessResult:
+    """Georeference every exposure of ``events.csv`` from the generic ``imu.csv`` and ``gnss.csv``
+    (:mod:`georef.io.generic`; all three on one clock)."""
+    from georef.io.generic import read_generic_log
+
+    say = progress or (lambda _step: None)
+    if cfg.processing.method == "axis":
+        raise GeorefError("--method axis needs a POS unit's own roll, pitch and yaw (POS.txt); imu.csv and gnss.csv "
+                          "are fused with rts, ekf or graph")
+    frames = _output_frames(cfg)
+    image_names = ImageNames.parse(cfg.output.image_names) if cfg.output.image_names else None
+    start = time.perf_counter()
+    say("reading imu.csv and gnss.csv")
+    log = read_generic_log(imu_path, gnss_path)
+    say("reading exposures")
+    exposures, names = read_events(events_path)
+    image_names = image_names or names
+    _shift_by_latency(exposures, cfg)
+    return _georeference(log, exposures, cfg, frames, image_names, say, time.perf_counter() - start)

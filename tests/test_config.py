@@ -33,6 +33,7 @@ BAD_VALUES = [
     ("gnss", "gnss_rate_hz", "0", "positive Hz"),
     ("gnss", "gnss_latency_sigma", "0", "positive seconds"),
     ("gnss", "gnss_latency", '"0.1"', "must be float"),
+    ("gnss", "gnss_correlation_time", "-5", "0 (white errors) or positive seconds"),
     ("camera", "camera_utc_offset", '"+2"', "must be float"),
     ("camera", "camera_time_offset", "true", "must be float"),
     ("output", "height", '"geoid"', "'ellipsoidal' or 'orthometric'"),
@@ -96,7 +97,8 @@ def _non_default() -> ProcessingConfig:
         lever_arm_gnss=(0.4512345678901, -0.15, -1.65), lever_arm_camera=(1.1, -0.25, 0.55),
         boresight=(0.35, -0.6, 1.2), lever_arm_gnss_sigma=(0.02, 0.03, 0.1),
         gnss_sigma=(0.05, 0.06, 0.1), gnss_rate_hz=5.0, gnss_latency=0.012, gnss_latency_sigma=0.004,
-        camera_utc_offset=2.0, camera_time_offset=-0.0375,
+        gnss_correlation_time=120.0,
+        camera_utc_offset=2.0, camera_time_offset=-0.0375, camera_time_sigma=0.004,
         crs="EPSG:3765+5773", height="orthometric", vertical_crs="EPSG:3900", image_names="IMG_{frame:04d}.JPG",
         odm_angles=True,
         yaw_window=90.0, yaw_step=10.0, yaw_bandwidth=600.0,
@@ -152,7 +154,7 @@ def test_unknown_section_and_key_name_their_line(tmp_path):
     with pytest.raises(InputError) as caught:
         load_config(path)
     assert (caught.value.line, caught.value.column) == (3, "gnss.sigma")
-    assert "gnss_latency, gnss_latency_sigma, gnss_rate_hz, gnss_sigma" in caught.value.message
+    assert "gnss_correlation_time, gnss_latency, gnss_latency_sigma, gnss_rate_hz, gnss_sigma" in caught.value.message
 
 
 def test_updated_takes_flight_toml_keys_and_whole_sections():

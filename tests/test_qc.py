@@ -170,7 +170,7 @@ def test_axis_method_gets_the_checks_that_apply(flight_dir, flight_config):
 
 
 # ---- thresholds, on the clean run with one thing changed ---------------------------------------------------------
-def test_innovation_level_fails_both_ways(clean):
+def test_innovation_level_fails_high_and_warns_low(clean):
     nis = clean.nav.diagnostics.nis
     n = int((clean.nav.gnss.status == 1).sum())
     lo, hi = nis_band(n)
@@ -178,7 +178,8 @@ def test_innovation_level_fails_both_ways(clean):
     high = _by_name(_with(clean, nis=nis * 2.0))["innovations"]
     low = _by_name(_with(clean, nis=nis * 0.4))["innovations"]
     assert high.status == "fail" and "more than the fitted model explains" in high.message
-    assert low.status == "fail" and "too pessimistic" in low.message
+    # pessimistic sigmas are safe to use: a warning that points at the held-out check, never a failure
+    assert low.status == "warn" and "may be pessimistic" in low.message and "held-out" in low.message
 
 
 def test_a_burst_of_large_innovations_warns_with_its_span(clean):
@@ -247,7 +248,8 @@ def test_latency_warns_only_when_significant_and_not_given(clean):
 
 def test_heading_restarts_and_imu_gaps(clean):
     none = _by_name(_with(clean, heading_source="none: the heading is not observable from the motion"))["heading"]
-    assert none.status == "fail" and "magnetometer" in none.message
+    # the advice fits what a POS user holds: the unit's own yaw
+    assert none.status == "fail" and "POS.txt" in none.message
     # a magnetometer heading (sigma 10 deg): a warning while the yaw claims no better than that source can give,
     # a failure when it claims more (the motion never showed the heading, so that information is spurious)
     nav = clean.nav

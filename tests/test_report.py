@@ -167,7 +167,7 @@ def test_report_is_one_self_contained_file_and_renders_in_headless_chromium(rts,
     assert "χ² 16.27 on the 3-D position innovation (99.90 % of good fixes pass)" in provenance
     # every setting of the ProcessingConfig, by its flight.toml key
     settings = text.text("settings")
-    assert len(cfg.settings()) == 40
+    assert len(cfg.settings()) == 42
     for key in cfg.settings():
         assert key in settings, key
 

@@ -26,7 +26,14 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from georef.config import ConfigValueError, GraphSettings, InsSettings, ProcessingConfig, load_configs
+from georef.config import (
+    ConfigValueError,
+    GraphSettings,
+    InsSettings,
+    ProcessingConfig,
+    configured_keys,
+    load_configs,
+)
 from georef.io.errors import GeorefError
 
 from .coercion import PlainCoercionCommand, PlainCoercionGroup
@@ -34,10 +41,16 @@ from .options import (
     AttitudeMethod,
     BatchMethod,
     ConfigFile,
+    EventsFile,
     FuseMethod,
+    GnssFile,
     GnssLatency,
     GnssLeverArm,
     GnssSigma,
+    ImuFile,
+    ImuInstance,
+    ImuPreset,
+    MagneticDeclination,
     ProcessMethod,
     Quiet,
     SummaryJson,
@@ -196,9 +209,18 @@ def _print_verdict(verdict: Any, quiet: bool) -> None:
 @app.command(cls=PlainCoercionCommand)
 @_user_errors
 def process(
-    pos: Annotated[Path, typer.Argument(help="POS unit log (POS.txt, tab separated, iMAR layout).")],
-    camera: Annotated[Path, typer.Argument(help="Exposure times: Kamera.txt, or the camera's raw log "
-                                                "(needs --camera-utc-offset).")],
+    pos: Annotated[Path | None, typer.Argument(
+        help="The flight's log: an autopilot log (ArduPilot .bin or .log, PX4 .ulg; the format is read from the "
+             "content, gzip too) with its camera events, or a POS unit's POS.txt (with CAMERA). Leave it out with "
+             "--imu/--gnss/--events.", show_default=False)] = None,
+    camera: Annotated[Path | None, typer.Argument(
+        help="POS.txt's exposure times: Kamera.txt, or the camera's raw log (needs --camera-utc-offset).",
+        show_default=False)] = None,
+    imu: ImuFile = None,
+    gnss: GnssFile = None,
+    events: EventsFile = None,
+    imu_instance: ImuInstance = None,
+    imu_preset: ImuPreset = None,
     output: Annotated[Path | None, output_option("EO table to write (default eo.csv); a .kml, .geojson or geo.txt "
                                                  "name writes that format.")] = None,
     output_format: Annotated[str | None, typer.Option(
@@ -226,8 +248,13 @@ def process(
     camera_time_offset: Annotated[float | None, typer.Option(
         help="Camera trigger latency in seconds, added to every exposure time (the exposure happened this long "
              "after its logged time); default 0.")] = None,
+    camera_time_sigma: Annotated[float | None, typer.Option(
+        help="Standard deviation in seconds of every exposure time, after --camera-time-offset; it widens each "
+             "camera position's sigma by the speed times it. Default: each source's own (0.002 s for a camera's "
+             "feedback, 0.1 s for a trigger command, an events.csv time_sigma column).")] = None,
     gnss_latency: GnssLatency = None,
     vehicle: Vehicle = None,
+    magnetic_declination: MagneticDeclination = None,
     crs: Annotated[str | None, typer.Option(
         help="Projected CRS for easting/northing columns, e.g. EPSG:3765 (HTRS96/TM), or a compound CRS with its "
              "height system, e.g. EPSG:3765+5773 (with --height orthometric).")] = None,
@@ -239,22 +266,23 @@ def process(
     verbose: Verbose = False,
     summary_json: SummaryJson = None,
 ) -> None:
-    """Turn POS.txt + exposure times into the exterior orientation of every frame.
+    """The exterior orientation of every frame: from an autopilot log and its camera events, from POS.txt and
+    Kamera.txt, or from imu.csv, gnss.csv and events.csv.
 
     Exit code 4: the outputs are written but the quality checks failed (docs/qc.md).
     """
     from georef.io.exports import ExportError, ExportSpec, check_exports, format_of, parse_export, write_export
     from georef.io.image_names import ImageNames
-    from georef.pipeline import process as run
     from georef.qc import assess_result
 
     from .summary import run_document
 
     _one_stdout(**{"-o": output, "--summary-json": summary_json})
     _not_stdout(report, "--report", "the report is written atomically as a file")
+    source = _process_inputs(pos, camera, imu, gnss, events, imu_instance)
     cfg = load_configs(config)
     cfg = _with_options(
-        cfg, method=("--method", plain(method)),
+        cfg, method=("--method", plain(method)), imu_preset=("--imu-preset", imu_preset),
         lever_arm_gnss=("--gnss-lever-arm", _triple(gnss_lever_arm, "--gnss-lever-arm", "metres")),
         lever_arm_camera=("--camera-lever-arm", _triple(camera_lever_arm, "--camera-lever-arm", "metres")),
         boresight=("--boresight", _triple(boresight, "--boresight", "degrees")),
@@ -262,7 +290,9 @@ def process(
         gnss_rate_hz=("--gnss-rate", gnss_rate), camera_utc_offset=("--camera-utc-offset", camera_utc_offset),
         crs=("--crs", crs), attitude_source=("--attitude-source", attitude_source),
         camera_time_offset=("--camera-time-offset", camera_time_offset),
+        camera_time_sigma=("--camera-time-sigma", camera_time_sigma),
         gnss_latency=("--gnss-latency", gnss_latency), vehicle=("--vehicle", plain(vehicle)),
+        magnetic_declination=("--magnetic-declination", magnetic_declination),
         height=("--height", height), image_names=("--image-names", image_names),
     )
     # every output, its format, the CRS, the geoid grid and the image names are checked before processing
@@ -293,8 +323,10 @@ def process(
     for target in (*(spec.path for spec in specs), report):  # a device, a directory or a write-protected file:
         if target is not None and not is_stdout(target):     # refused before processing
             resolve_target(target)
+    given = configured_keys(config) | {key for key, option in (("lever_arm_gnss", gnss_lever_arm),
+                                                                ("imu_preset", imu_preset)) if option is not None}
     with progress if progress is not None else contextlib.nullcontext():
-        result = run(pos, camera, cfg, progress=step)
+        result = source.run(cfg, step, given)
         def write(spec: Any) -> None:
             write_target(spec.path, lambda path: write_export(result.columns, path, spec.fmt, frames=result.frames,
                                                               odm_angles=cfg.output.odm_angles))
@@ -325,7 +357,7 @@ def process(
         if report is not None:
             outputs.append({"what": "report", "format": "html", "path": str(report)})
         write_json(summary_json, run_document(
-            "process", code, inputs={"pos": pos, "camera": camera, "config": config}, settings=cfg.settings(),
+            "process", code, inputs={**source.files, "config": config}, settings=result.config.settings(),
             outputs=outputs, summary=result.summary(), verdict=verdict))
     if not quiet:
         messages = _messages(output, summary_json, *(spec.path for spec in specs[1:]))
@@ -337,6 +369,48 @@ def process(
     _print_verdict(verdict, quiet)
     if code:
         raise typer.Exit(code=code)
+
+
+class _Inputs:
+    """What ``georef process`` was given and how to run it: ``files`` for the summary, ``run(cfg, step, given)``."""
+
+    def __init__(self, files: dict[str, Path | None], run: Callable[[ProcessingConfig, Any, set[str]], Any]):
+        self.files, self.run = files, run
+
+
+def _process_inputs(pos: Path | None, camera: Path | None, imu: Path | None, gnss: Path | None,
+                    events: Path | None, imu_instance: int | None) -> _Inputs:
+    """Which of the three ways in the arguments name (checked before anything is read but a log's first bytes)."""
+    from georef.io.logs import sniff
+    from georef.pipeline import process as run_pos
+    from georef.pipeline import process_generic, process_log
+
+    if imu is not None or gnss is not None:
+        if pos is not None or camera is not None:
+            raise typer.BadParameter("--imu/--gnss take the place of a log: give either a log (and CAMERA for "
+                                     "POS.txt) or --imu, --gnss and --events")
+        if imu is None or gnss is None or events is None:
+            missing = ", ".join(n for n, v in (("--imu", imu), ("--gnss", gnss), ("--events", events)) if v is None)
+            raise typer.BadParameter(f"generic inputs need --imu, --gnss and --events together; missing {missing}")
+        return _Inputs({"imu": imu, "gnss": gnss, "events": events},
+                       lambda cfg, step, _given: process_generic(imu, gnss, events, cfg, progress=step))
+    if pos is None:
+        raise typer.BadParameter("give the flight's log (an autopilot log, or POS.txt with Kamera.txt), or --imu, "
+                                 "--gnss and --events")
+    if sniff(pos) is not None:
+        if camera is not None:
+            raise typer.BadParameter(f"{camera}: an autopilot log brings its own camera events; give other exposure "
+                                     "times with --events events.csv (CAMERA is POS.txt's Kamera.txt)")
+        return _Inputs({"log": pos, "events": events},
+                       lambda cfg, step, given: process_log(pos, cfg, events, progress=step,
+                                                            imu_instance=imu_instance, given=given))
+    if camera is None:
+        raise typer.BadParameter(f"{pos} is not an autopilot log, so it is read as POS.txt, which needs its "
+                                 "exposure times: give Kamera.txt (or the camera's raw log) as CAMERA")
+    for option, value in (("--events", events), ("--imu-instance", imu_instance)):
+        if value is not None:
+            raise typer.BadParameter(f"{option} is for autopilot logs and generic inputs; POS.txt takes Kamera.txt")
+    return _Inputs({"pos": pos, "camera": camera}, lambda cfg, step, _given: run_pos(pos, camera, cfg, progress=step))
 
 
 def _filter_rows(s: dict[str, Any]) -> list[tuple[str, str]]:
@@ -651,13 +725,10 @@ def fuse(
     method: FuseMethod = "rts",
     gnss_lever_arm: GnssLeverArm = None,
     gnss_sigma: GnssSigma = None,
-    imu_preset: Annotated[str | None, typer.Option(
-        help="IMU error preset: mems-ivru, mems-consumer, tactical-fog (datasheet values in docs).")] = None,
+    imu_preset: ImuPreset = None,
     gnss_latency: GnssLatency = None,
     vehicle: Vehicle = None,
-    magnetic_declination: Annotated[float | None, typer.Option(
-        help="Magnetic declination [deg, east of true north] for a heading from imu.csv's mag_x..z, used only when "
-             "the motion never shows the heading (default 0).")] = None,
+    magnetic_declination: MagneticDeclination = None,
     quiet: Quiet = False,
     summary_json: SummaryJson = None,
 ) -> None:
@@ -697,11 +768,11 @@ def fuse(
             nav = solve_ins(inputs, InsSettings.of(cfg), smooth=method == "rts")
         step("writing trajectory")
         write_target(output, lambda path: write_trajectory_csv(nav, path))
-    verdict = assess(nav, cfg=cfg)
+    verdict = assess(nav, cfg=cfg, kind="imu.csv + gnss.csv")
     code = 0 if verdict.passed else EXIT_QC_FAILED
     used = int((nav.gnss.status >= 1).sum())
     rejected = nav.gnss.rejected_lines
-    figures = solution_figures(nav, cfg.gnss)
+    figures = solution_figures(nav, cfg.gnss, fixes.sigma_neu)
     if summary_json is not None:
         summary = {"method": method, "trajectory_rows": int(nav.valid.sum()), "gnss_fixes": len(fixes),
                    "gnss_used": used, "gnss_rejected_lines": rejected, **figures}
@@ -909,6 +980,18 @@ def _print_campaign(calibration: dict, summary_json: Path | None) -> None:
                       "calibration (longer flights, turns and speed changes observe them)", highlight=False)
 
 
+def _print_rows(title: str, rows: list[tuple[str, str]]) -> None:
+    """A two-column table of (what, value) rows on standard output."""
+    from rich.table import Table
+
+    table = Table(title=escape(title), show_header=False, title_justify="left")
+    table.add_column("what", style="bold")
+    table.add_column("value")
+    for what, value in rows:
+        table.add_row(escape(what), escape(value))
+    out.print(table)
+
+
 def _cell(value: Any) -> str:
     """A summary value as table text: empty for None/NaN/NA."""
     if value is None:
@@ -926,14 +1009,27 @@ def _cell(value: Any) -> str:
 @app.command(cls=PlainCoercionCommand)
 @_user_errors
 def info(
-    pos: Annotated[Path, typer.Argument(help="POS unit log (POS.txt).")],
+    pos: Annotated[Path, typer.Argument(help="The log: an autopilot log (ArduPilot .bin/.log, PX4 .ulg, gzip too) "
+                                             "or a POS unit's POS.txt.")],
     config: ConfigFile = None,
     gnss_rate: Annotated[float | None, typer.Option(help="GNSS fix rate in Hz, if known (default: the config's, "
                                                          "else 1).")] = None,
+    imu_instance: ImuInstance = None,
 ) -> None:
-    """Describe a POS log: format, span, rates, GNSS epochs and gaps, quirks repaired, columns found."""
+    """Describe a log: for an autopilot log its vehicle, span, IMU streams, GNSS fixes and accuracy, clock, camera
+    events and lever-arm parameters; for POS.txt its format, span, rates, GNSS epochs and gaps, quirks repaired,
+    columns found."""
+    from georef.io.logs import read_flight_log, sniff
     from georef.io.pos import read_pos
 
+    if sniff(pos) is not None:
+        from georef.io.logs.flightlog import describe
+
+        flight = read_flight_log(pos, imu_instance)
+        _print_rows(str(pos), describe(flight))
+        for notice in flight.notices:
+            console.print(f"[yellow]notice:[/] {escape(str(notice))}", highlight=False)
+        return
     cfg = load_configs(config)
     rate = gnss_rate if gnss_rate is not None else cfg.gnss.rate_hz
     log = read_pos(pos, column_names=cfg.pos_columns.names, gnss_rate_hz=rate)

@@ -15,6 +15,7 @@ from typing import Annotated, Any
 import typer
 
 from georef.config import METHODS
+from georef.imu_errors import presets_help
 
 #: ``-`` as a file name: standard output (``-o -``, ``--summary-json -``)
 STDOUT = "-"
@@ -65,6 +66,23 @@ AttitudeMethodChoice = choice("AttitudeMethod", ATTITUDE_METHODS)
 VehicleChoice = choice("Vehicle", VEHICLES)
 
 
+ImuPreset = Annotated[str | None, typer.Option(
+    "--imu-preset", help="IMU error preset: the datasheet prior of the noise model the data then fit. " + presets_help()
+    + ".")]
+ImuFile = Annotated[Path | None, typer.Option(
+    "--imu", help="imu.csv: time [s], gyro_x..z [rad/s], acc_x..z [m/s^2], body axes forward-right-down; optional "
+                  "mag_x..z and an autopilot's roll, pitch, yaw [deg] (docs/formats.md).")]
+GnssFile = Annotated[Path | None, typer.Option(
+    "--gnss", help="gnss.csv: time [s, imu.csv's clock], lat, lon [deg], height [m, ellipsoidal] of the antenna, "
+                   "optional sigma_n, sigma_e, sigma_u [m].")]
+EventsFile = Annotated[Path | None, typer.Option(
+    "--events", help="events.csv: the exposures, time [s, the IMU's clock: imu.csv's, or UTC seconds of the day "
+                     "for an autopilot log] and an optional image name; replaces an autopilot log's own camera "
+                     "events.")]
+ImuInstance = Annotated[int | None, typer.Option(
+    "--imu-instance", help="Which of an autopilot log's IMUs to use (default the primary: ArduPilot's IMU 0, "
+                                  "PX4's sensor_combined; N picks ArduPilot's IMU N or PX4's vehicle_imu N); "
+                                  "georef info lists them.")]
 Quiet = Annotated[bool, typer.Option(
     "--quiet", "-q", help="Print nothing but errors (and failed quality checks, for the commands that run them).")]
 Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Also list every input notice.")]
@@ -97,6 +115,10 @@ GnssSigma = Annotated[str | None, typer.Option(
 GnssLatency = Annotated[float | None, typer.Option(
     help="GNSS time-tag latency in seconds (the fix was measured this long before its time tag); default: "
          "estimated and reported, not applied.")]
+MagneticDeclination = Annotated[float | None, typer.Option(
+    help="Magnetic declination [deg, east of true north] for a heading from the magnetometer (an autopilot log's "
+         "MAG or vehicle_magnetometer, imu.csv's mag_x..z), used only when the motion never shows the heading and "
+         "no autopilot yaw is logged (default 0).")]
 Vehicle = Annotated[VehicleChoice | None, typer.Option(  # type: ignore[valid-type]
     case_sensitive=False,
     help="auto (non-holonomic constraints when the motion shows a ground vehicle; default), ground (always) "

@@ -50,6 +50,7 @@ from georef.frames import (
 )
 from georef.frames.mounting import lever_arm_offset
 from georef.frames.rotations import rotvec_to_dcm
+from georef.fusion import ins_layout as layout
 from georef.kernels import load as load_kernel
 
 #: a heading known to better than this [rad] somewhere in the window ends the search
@@ -103,6 +104,13 @@ class Alignment:
     yaw_offset: object = None
     #: the bias prior sigmas the fit kept [rad/s, m/s^2]: the datasheet's, or wider where the data rejected it
     bias_prior_sigma: tuple[float, float] | None = None
+    #: the covariance is a prior (gravity and the datasheet, :func:`georef.fusion.start.level_covariance`), not a
+    #: fit to the fixes the filter will use: it is taken whole
+    prior_covariance: bool = False
+    #: the heading is still to be found (the heading bank, :func:`georef.fusion.ins.decide_heading`)
+    needs_heading: bool = False
+    #: how the level was read (georef.fusion.start.Level), when it was read from gravity
+    level: object = None
 
 
 @dataclass
@@ -359,15 +367,31 @@ def align(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, fix_time: np.ndarr
     lat_s, lon_s, h_s = ecef_to_geodetic(r_e[None, :])
     # tangent frame -> local NED at the start position (they differ by the small angle of the displacement)
     C_t_n = C_e_n(lat_s[0], lon_s[0]) @ C_n_e(lat0, lon0)
-    # correction order (ρ, r0, v0, b_g, b_a), true = estimate + correction -> filter errors (estimate - truth)
-    sign = np.concatenate([np.full(3, 1.0), np.full(12, -1.0)])
-    cov_filter = cov * np.outer(sign, sign)
     return Alignment(start_row=row0, position=np.array([lat_s[0], lon_s[0], h_s[0]]), v_n=C_t_n @ v0,
-                     C_b_n=C_t_n @ C0, gyro_bias=b_g_fit, accel_bias=b_a_fit, covariance=cov_filter,
+                     C_b_n=C_t_n @ C0, gyro_bias=b_g_fit, accel_bias=b_a_fit, covariance=filter_order(cov),
                      heading_source="motion", observable=bool(heading_sigma < HEADING_SIGMA_OK),
                      heading_sigma=float(heading_sigma), heading_time=float(heading_time),
                      window=(float(t[row0]), float(t_end)), variance_factor=vf,
                      bias_prior_sigma=(float(prior[0]), float(prior[1])))
+
+
+#: where each block of the fit's correction vector (true = estimate + correction) starts: rotation ρ (with
+#: C0 <- exp([ρ x]) C0), r0 [m], v0 [m/s], gyro bias [rad/s], accelerometer bias [m/s^2]
+FIT_ROT, FIT_POS, FIT_VEL, FIT_BG, FIT_BA = 0, 3, 6, 9, 12
+FIT_N = 15
+
+
+def filter_order(cov: np.ndarray) -> np.ndarray:
+    """The fit's covariance (FIT_N, FIT_N) in the filter's error-state order and sign (:mod:`ins_layout`: errors
+    are estimate minus truth, so every correction but the rotation changes sign; the rotation's sign is the
+    filter's already, ``Ĉ = (I - [φ x]) C``), first ``FIT_N`` filter states."""
+    source = {FIT_ROT: layout.ATT, FIT_POS: layout.POS, FIT_VEL: layout.VEL, FIT_BG: layout.BG, FIT_BA: layout.BA}
+    index = np.empty(FIT_N, dtype=int)
+    sign = np.empty(FIT_N)
+    for fit_start, filter_start in source.items():
+        index[filter_start:filter_start + 3] = np.arange(fit_start, fit_start + 3)
+        sign[filter_start:filter_start + 3] = 1.0 if fit_start == FIT_ROT else -1.0
+    return cov[np.ix_(index, index)] * np.outer(sign, sign)
 
 
 def _fit(win: _Window, bias_g: np.ndarray, bias_a: np.ndarray, heading_turn: float = 0.0,

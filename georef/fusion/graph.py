@@ -58,7 +58,7 @@ from georef.frames.rotations import (
 )
 from georef.fusion.increments import compensated_rates
 from georef.fusion.ins import InsInputs, _fix_sigmas, _gap_scale, inputs_from_pos, solve_ins
-from georef.fusion.ins_layout import NHC_GATE, NHC_LEVER
+from georef.fusion.ins_layout import BA, BG, NHC_GATE, NHC_LEVER
 from georef.fusion.solution import GraphCalibration, GraphInfo, NavSolution, ScaleFactors
 
 if TYPE_CHECKING:  # gtsam is imported where it is used; importing this module needs no gtsam
@@ -156,8 +156,8 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings | ProcessingConfig,
             np.concatenate([np.full(3, np.radians(1.0)), pos_sigma]))),
         gtsam.PriorFactorVector(V(0), v_t[first], gtsam.noiseModel.Isotropic.Sigma(3, 0.5)),
         gtsam.PriorFactorConstantBias(B(0), values.atConstantBias(B(0)), gtsam.noiseModel.Diagonal.Sigmas(
-            np.sqrt(np.concatenate([np.diag(rts.diagnostics.alignment.covariance)[12:15],
-                                    np.diag(rts.diagnostics.alignment.covariance)[9:12]])) * 3.0))]
+            np.sqrt(np.concatenate([np.diag(rts.diagnostics.alignment.covariance)[BA:BA + 3],
+                                    np.diag(rts.diagnostics.alignment.covariance)[BG:BG + 3]])) * 3.0))]
     gyro = inputs.gyro
     # each row's own normal gravity, turned into the plane: f' = f + C_t_b (g_t - g_plane) makes GTSAM's constant
     # plane gravity exact (the local vertical is tilted by d/R from the plane's down axis)

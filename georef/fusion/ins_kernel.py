@@ -44,10 +44,14 @@ from georef.fusion.ins_layout import (  # noqa: F401  (the kernel's public names
     ATT,
     AUX_NHC,
     AUX_UNIT,
+    AUX_ZARU,
+    AUX_ZUPT,
     B_ATT_H,
     B_ATT_V,
     B_BA,
     B_BG,
+    B_GNSS_GM_H,
+    B_GNSS_GM_V,
     B_GNSS_H,
     B_GNSS_V,
     B_NHC,
@@ -65,8 +69,11 @@ from georef.fusion.ins_layout import (  # noqa: F401  (the kernel's public names
     FIX_REJECTED,
     FIX_UNUSED,
     FIX_USED,
+    GAP_STEP_S,
+    GNSS_GM,
     INV_TAU_A,
     INV_TAU_G,
+    INV_TAU_GNSS,
     INV_TAU_UNIT,
     LATENCY,
     LEVER,
@@ -82,6 +89,8 @@ from georef.fusion.ins_layout import (  # noqa: F401  (the kernel's public names
     Q_ATT_V,
     Q_BA,
     Q_BG,
+    Q_GNSS_GM_H,
+    Q_GNSS_GM_V,
     Q_UNIT_DRIFT,
     Q_UNIT_LEVEL,
     Q_VEL_H,
@@ -91,8 +100,11 @@ from georef.fusion.ins_layout import (  # noqa: F401  (the kernel's public names
     R_SCALE_V,
     R_UNIT_LEVEL,
     R_UNIT_YAW,
+    R_ZARU,
+    R_ZUPT,
     REACQUIRE_FIXES,
     REACQUIRE_GATE,
+    STEP_S,
     STOP_DIVERGED,
     STOP_DRIFT,
     STOP_END,
@@ -103,6 +115,7 @@ from georef.fusion.ins_layout import (  # noqa: F401  (the kernel's public names
     VEL,
     X_BA,
     X_BG,
+    X_GNSS_GM,
     X_HGT,
     X_LAT,
     X_LATENCY,
@@ -113,6 +126,7 @@ from georef.fusion.ins_layout import (  # noqa: F401  (the kernel's public names
     X_UNIT_LEVEL,
     X_UNIT_YAW,
     X_VEL,
+    ZUPT_GATE,
 )
 from georef.fusion.strapdown import (  # noqa: F401  (exported)
     MECHANISE_WORK,
@@ -138,6 +152,10 @@ def continuous_noise(noise: np.ndarray, nx: int, nav_scale: float, bias_scale: f
         q[BG + i] = noise[Q_BG] * bias_scale
         q[BA + i] = noise[Q_BA] * bias_scale
     q[UNIT_DRIFT] = noise[Q_UNIT_DRIFT] * bias_scale
+    # the receiver's correlated error does not change with the vehicle's dynamics: no scale
+    q[GNSS_GM] = noise[Q_GNSS_GM_H]
+    q[GNSS_GM + 1] = noise[Q_GNSS_GM_H]
+    q[GNSS_GM + 2] = noise[Q_GNSS_GM_V]
     return q
 
 
@@ -206,6 +224,8 @@ def system_matrix(x: np.ndarray, C: np.ndarray, f_n: np.ndarray, noise: np.ndarr
     F[UNIT_LEVEL, UNIT_LEVEL] = -noise[INV_TAU_UNIT]
     F[UNIT_LEVEL + 1, UNIT_LEVEL + 1] = -noise[INV_TAU_UNIT]
     F[UNIT_YAW, UNIT_DRIFT] = 1.0
+    for i in range(3):
+        F[GNSS_GM + i, GNSS_GM + i] = -noise[INV_TAU_GNSS]
 
 
 @njit(cache=True)
@@ -253,6 +273,8 @@ def correct_state(x: np.ndarray, dx: np.ndarray) -> None:
     x[X_UNIT_LEVEL + 1] -= dx[UNIT_LEVEL + 1]
     x[X_UNIT_YAW] -= dx[UNIT_YAW]
     x[X_UNIT_DRIFT] -= dx[UNIT_DRIFT]
+    for i in range(3):
+        x[X_GNSS_GM + i] -= dx[GNSS_GM + i]
     if dx.shape[0] > LEVER:
         for i in range(3):
             x[X_LEVER + i] -= dx[LEVER + i]
@@ -276,16 +298,45 @@ def propagate(P: np.ndarray, x_epoch: np.ndarray, C_mean: np.ndarray, f_mean: np
               out: np.ndarray) -> None:
     """Covariance propagation over one epoch interval ``dT`` [s] with the process noise scaled by ``q_scale`` =
     (navigation white noise factor, bias drive factor); fills F, Φ and Q_d, writes P⁻ = Φ P Φᵀ + Q_d into ``out``
-    (not ``P``). ``work`` (6, nx, nx): scratch."""
+    (not ``P``). ``work`` (9, nx, nx): scratch.
+
+    An interval longer than its step (:func:`propagation_steps`) is taken in equal steps with the same F and
+    noise, Φ and Q_d composed: the third-order series of :func:`discretise` drops the dT⁵ term that carries
+    attitude noise into position, and over a long interval with raised noise (an IMU gap bridged with the noise
+    of unknown motion) the truncated Q_d, and P⁻ with it, stopped being positive semi-definite."""
     system_matrix(x_epoch, C_mean, f_mean, noise, F)
-    discretise(F, continuous_noise(noise, P.shape[0], q_scale[0], q_scale[1]), dT, Phi, Qd, work)
+    q = continuous_noise(noise, P.shape[0], q_scale[0], q_scale[1])
+    steps = propagation_steps(dT, q_scale[0])
+    n = P.shape[0]
     PhiP = work[5]
+    if steps == 1:
+        discretise(F, q, dT, Phi, Qd, work)
+    else:
+        Phi_step, Qd_step, product = work[6], work[7], work[8]
+        discretise(F, q, dT / steps, Phi_step, Qd_step, work)
+        Phi[:, :] = Phi_step
+        Qd[:, :] = Qd_step
+        for _ in range(steps - 1):
+            np.dot(Phi_step, Phi, product)
+            Phi[:, :] = product
+            np.dot(Phi_step, Qd, product)
+            np.dot(product, Phi_step.T, PhiP)
+            for i in range(n):
+                for j in range(n):
+                    Qd[i, j] = PhiP[i, j] + Qd_step[i, j]
     np.dot(Phi, P, PhiP)
     np.dot(PhiP, Phi.T, out)
-    n = P.shape[0]
     for i in range(n):
         for j in range(n):
             out[i, j] += Qd[i, j]
+
+
+@njit(cache=True)
+def propagation_steps(dT: float, nav_noise_scale: float) -> int:
+    """How many equal steps an epoch interval of ``dT`` [s] is propagated in: steps of at most STEP_S, or
+    GAP_STEP_S when the navigation noise is raised (an IMU gap)."""
+    step = GAP_STEP_S if nav_noise_scale > 1.0 else STEP_S
+    return max(1, int(math.ceil(dT / step - 1e-9)))
 
 
 @njit(cache=True)
@@ -317,7 +368,8 @@ def gnss_innovation(x: np.ndarray, C: np.ndarray, fix: np.ndarray, lag: float, n
     """Innovation (predicted minus measured antenna position, NED metres) and its H (3, nx).
 
     ``fix`` = (lat, lon [rad], h [m]); the fix was measured ``lag + latency`` seconds before the nominal
-    state's time, so the prediction is moved back along the velocity.
+    state's time, so the prediction is moved back along the velocity. The predicted fix carries the estimated
+    correlated GNSS error (GNSS_GM) on top of the antenna position.
     """
     lever_n = np.empty(3)
     lever_arm_into(C, x[X_LEVER:X_LEVER + 3], lever_n)
@@ -329,8 +381,10 @@ def gnss_innovation(x: np.ndarray, C: np.ndarray, fix: np.ndarray, lag: float, n
     z[2] = -(x[X_HGT] - fix[2]) + lever_n[2] - x[X_VEL + 2] * back
     H = np.zeros((3, nx))
     for i in range(3):
+        z[i] += x[X_GNSS_GM + i]
         H[i, POS + i] = 1.0
         H[i, VEL + i] = -back
+        H[i, GNSS_GM + i] = 1.0
     # Ĉ l = C l + (C l) x φ
     add_skew(lever_n, H, 0, ATT, 1.0)
     if nx > LEVER:
@@ -365,6 +419,34 @@ def nhc_innovation(x: np.ndarray, C: np.ndarray, nx: int):
         for j in range(3):
             H[i, VEL + j] = c[j]
             H[i, ATT + j] = row_att[j]
+    return z, H
+
+
+@njit(cache=True)
+def zupt_innovation(x: np.ndarray, nx: int):
+    """Zero-velocity update of a vehicle standing still: the innovation is the predicted NED velocity [m/s],
+    ``H`` (3, nx) picks the velocity error."""
+    z = np.empty(3)
+    H = np.zeros((3, nx))
+    for i in range(3):
+        z[i] = x[X_VEL + i]
+        H[i, VEL + i] = 1.0
+    return z, H
+
+
+@njit(cache=True)
+def zaru_innovation(x: np.ndarray, C: np.ndarray, rate_mean: np.ndarray, nx: int):
+    """Zero angular-rate update of a vehicle standing still: the innovation is the epoch's mean measured rate less
+    the estimated gyro bias and the Earth's rate in the body [rad/s]; with ``δb = b_est - b_true`` it is ``-δb``
+    plus noise, so ``H`` (3, nx) is minus the identity on the gyro bias."""
+    w_ie = np.empty(3)
+    earth_rate(x[X_LAT], w_ie)
+    z = np.empty(3)
+    H = np.zeros((3, nx))
+    for i in range(3):
+        earth_b = C[0, i] * w_ie[0] + C[1, i] * w_ie[1] + C[2, i] * w_ie[2]  # C_n_b w_ie = (C_b_n)^T w_ie
+        z[i] = rate_mean[i] - x[X_BG + i] - earth_b
+        H[i, BG + i] = -1.0
     return z, H
 
 
@@ -407,8 +489,31 @@ def innovation_covariance(P: np.ndarray, H: np.ndarray, r: np.ndarray) -> np.nda
 
 
 @njit(cache=True)
+def aux_update(x, P, P_next, z, H, r, gate, C, dx_total, work, n_ep, kind, n_aux, aux_epoch, aux_kind, aux_z, aux_H,
+               aux_status, aux_r):
+    """Record an auxiliary update (ZUPT, ZARU, the unit's attitude: 3 rows, diagonal noise ``r``) in slot
+    ``n_aux`` and apply it unless its normalised innovation squared exceeds ``gate``.
+
+    Returns the covariance and the spare buffer (swapped when applied) and the normalised innovation squared."""
+    S = innovation_covariance(P, H, r)
+    S_inv = np.linalg.inv(S)
+    d2 = z @ S_inv @ z
+    aux_epoch[n_aux] = n_ep
+    aux_kind[n_aux] = kind
+    aux_z[n_aux] = z + H @ dx_total
+    aux_H[n_aux] = H
+    aux_r[n_aux] = r
+    if d2 <= gate:
+        aux_status[n_aux] = FIX_USED
+        kalman_update(x, P, H, z, S_inv, C, dx_total, work, P_next)
+        return P_next, P, d2
+    aux_status[n_aux] = FIX_REJECTED
+    return P, P_next, d2
+
+
+@njit(cache=True)
 def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fix, noise, q_scale, stride,
-                gate_chi2, max_rejects, max_gap, outage_s, unit_rpy, unit_aiding, nhc, nav):
+                gate_chi2, max_rejects, max_gap, outage_s, unit_rpy, unit_aiding, nhc, still, nav):
     """One segment of the forward error-state EKF, from ``start_row`` until the end or a divergence.
 
     Inputs: row times ``t`` (N,) s; ``gyro`` rad/s and ``accel`` m/s^2 (N, 3) body frame; the start row, its
@@ -422,13 +527,15 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
     (STOP_DRIFT: the inertial drift over the outage or gap exceeded the model, not a divergence); an IMU gap
     longer than ``max_gap`` [s] stops it at the row before the gap (STOP_GAP). With ``unit_aiding`` the unit's
     roll, pitch, yaw ``unit_rpy`` (N, 3) [rad] are fused at every GNSS epoch and at least once a second; with
-    ``nhc`` the non-holonomic constraint of a ground vehicle at every covariance epoch.
+    ``nhc`` the non-holonomic constraint of a ground vehicle at every covariance epoch; at every covariance epoch
+    on a row where ``still`` (N,) is set, a zero-velocity update with variance R_ZUPT and a zero angular-rate update
+    of the epoch's mean rate with variance R_ZARU over the epoch's rows.
     The nominal state of every row is written into ``nav`` (N, NS).
 
     Returns per covariance epoch: row, interval [s], P⁻, P⁺, Φ, the feedback correction; per fix: epoch,
     innovation relative to the epoch's pre-update error, H, innovation covariance, normalised innovation
     squared, status; per auxiliary update (unit attitude, NHC): epoch, kind, innovation, H, status, the
-    measurement variances used; ``stop`` =
+    measurement variances used (AUX_UNIT, AUX_NHC, AUX_ZUPT); ``stop`` =
     (last row, first fix of the rejected run, STOP_END, STOP_DIVERGED, STOP_GAP or STOP_DRIFT); and per epoch
     the innovation log-likelihood of its GNSS fixes, unit and NHC updates, rejected ones included (E, 3).
     """
@@ -451,12 +558,12 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
     fix_d2 = np.full(m, np.nan)
     fix_status = np.full(m, FIX_UNUSED, dtype=np.int64)
     # written update by update, returned up to the last one written
-    aux_epoch = np.empty(2 * max_epochs, dtype=np.int64)
-    aux_kind = np.empty(2 * max_epochs, dtype=np.int64)
-    aux_z = np.empty((2 * max_epochs, 3))
-    aux_H = np.empty((2 * max_epochs, 3, nx))
-    aux_status = np.empty(2 * max_epochs, dtype=np.int64)
-    aux_r = np.empty((2 * max_epochs, 3))
+    aux_epoch = np.empty(4 * max_epochs, dtype=np.int64)
+    aux_kind = np.empty(4 * max_epochs, dtype=np.int64)
+    aux_z = np.empty((4 * max_epochs, 3))
+    aux_H = np.empty((4 * max_epochs, 3, nx))
+    aux_status = np.empty(4 * max_epochs, dtype=np.int64)
+    aux_r = np.empty((4 * max_epochs, 3))
     n_aux = 0
     stop = np.array([n - 1, -1, STOP_END], dtype=np.int64)
     # innovation log-likelihood of the GNSS fixes, unit and NHC updates at each epoch:
@@ -503,12 +610,14 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
     r_unit = np.array([noise[R_UNIT_LEVEL], noise[R_UNIT_LEVEL], noise[R_UNIT_YAW]])
     r_scale = np.array([noise[R_SCALE_H], noise[R_SCALE_H], noise[R_SCALE_V]])
     r_nhc = np.array([noise[R_NHC], noise[R_NHC], 1.0])
+    r_zupt = np.array([noise[R_ZUPT], noise[R_ZUPT], noise[R_ZUPT]])
+    w_sum = np.zeros(3)
     F = np.zeros((nx, nx))
     Phi = np.zeros((nx, nx))
     Qd = np.zeros((nx, nx))
     # P and the buffer the next step writes into (swapped after each step), scratch for the products
     P_next = np.empty((nx, nx))
-    work = np.empty((6, nx, nx))
+    work = np.empty((9, nx, nx))
     mech_work = np.empty((MECHANISE_WORK, 4))  # the strapdown's scratch, reused at every row
     for k in range(start_row + 1, n):
         dt = t[k] - t[k - 1]
@@ -542,6 +651,9 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
         decay = math.exp(-dt * noise[INV_TAU_UNIT])
         x[X_UNIT_LEVEL] *= decay
         x[X_UNIT_LEVEL + 1] *= decay
+        decay = math.exp(-dt * noise[INV_TAU_GNSS])
+        for i in range(3):
+            x[X_GNSS_GM + i] *= decay
         # the interval's mean attitude and specific force, for F; per component (no temporaries: every row)
         for i in range(3):
             u[i] = dvel[i] / dt
@@ -551,6 +663,7 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
         np.dot(C_mid, u, f_row)
         for i in range(3):
             f_sum[i] += f_row[i]
+            w_sum[i] += gyro[k, i]
         count += 1
         has_fix = k_fix < m and fix_row[k_fix] == k
         if count >= stride or has_fix or k == n - 1:
@@ -596,25 +709,27 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
                     aux_status[n_aux] = FIX_REJECTED
                 aux_r[n_aux] = r_turn
                 n_aux += 1
+            if still[k]:
+                # a vehicle read as still that moves after all is refused
+                z, H = zupt_innovation(x, nx)
+                P, P_next, _ = aux_update(x, P, P_next, z, H, r_zupt, ZUPT_GATE, C, dx_total, work[0], n_ep, AUX_ZUPT,
+                                          n_aux, aux_epoch, aux_kind, aux_z, aux_H, aux_status, aux_r)
+                n_aux += 1
+                # and no rotation: the mean rate over the epoch is the gyro bias (and the Earth's rate)
+                z, H = zaru_innovation(x, C, w_sum / count, nx)
+                r_zaru = np.full(3, noise[R_ZARU] / count)
+                P, P_next, _ = aux_update(x, P, P_next, z, H, r_zaru, ZUPT_GATE, C, dx_total, work[0], n_ep, AUX_ZARU,
+                                          n_aux, aux_epoch, aux_kind, aux_z, aux_H, aux_status, aux_r)
+                n_aux += 1
             if unit_aiding and (has_fix or t[k] - t_unit >= 1.0):
                 t_unit = t[k]
                 z, H = unit_attitude_innovation(x, C, unit_rpy[k], nx)
                 S = innovation_covariance(P, H, r_unit)
-                S_inv = np.linalg.inv(S)
-                d2 = z @ S_inv @ z
                 # every processed update counts, gated or not: a filter that gates its data out must not look good
-                ep_loglik[n_ep, 1] -= 0.5 * (math.log(np.linalg.det(S)) + d2 + 3.0 * math.log(2.0 * math.pi))
-                aux_epoch[n_aux] = n_ep
-                aux_kind[n_aux] = AUX_UNIT
-                aux_z[n_aux] = z + H @ dx_total
-                aux_H[n_aux] = H
-                if d2 <= gate_chi2:
-                    aux_status[n_aux] = FIX_USED
-                    kalman_update(x, P, H, z, S_inv, C, dx_total, work[0], P_next)
-                    P, P_next = P_next, P
-                else:
-                    aux_status[n_aux] = FIX_REJECTED
-                aux_r[n_aux] = r_unit
+                ep_loglik[n_ep, 1] -= 0.5 * (math.log(np.linalg.det(S)) + 3.0 * math.log(2.0 * math.pi))
+                P, P_next, d2 = aux_update(x, P, P_next, z, H, r_unit, gate_chi2, C, dx_total, work[0], n_ep,
+                                           AUX_UNIT, n_aux, aux_epoch, aux_kind, aux_z, aux_H, aux_status, aux_r)
+                ep_loglik[n_ep, 1] -= 0.5 * d2
                 n_aux += 1
             while k_fix < m and fix_row[k_fix] == k:
                 t_fix = t[k] - fix_lag[k_fix]
@@ -657,6 +772,7 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
             ep_dx[n_ep] = dx_total
             n_ep += 1
             C_sum[:, :] = 0.0
+            w_sum[:] = 0.0
             f_sum[:] = 0.0
             count = 0
             x_epoch[:] = x
@@ -731,8 +847,10 @@ def rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, ep_outage, noise
     err_pre[n_ep - 1] = ep_dx[n_ep - 1]
     blocks = [np.array([POS, POS + 1, VEL, VEL + 1]), np.array([POS + 2, VEL + 2]), np.array([ATT, ATT + 1]),
               np.array([ATT + 2]), np.array([BG, BG + 1, BG + 2]), np.array([BA, BA + 1, BA + 2]),
-              np.array([UNIT_LEVEL, UNIT_LEVEL + 1]), np.array([UNIT_YAW, UNIT_DRIFT])]
-    block_ids = np.array([B_VEL_H, B_VEL_V, B_ATT_H, B_ATT_V, B_BG, B_BA, B_UNIT_LEVEL, B_UNIT_DRIFT])
+              np.array([UNIT_LEVEL, UNIT_LEVEL + 1]), np.array([UNIT_YAW, UNIT_DRIFT]),
+              np.array([GNSS_GM, GNSS_GM + 1]), np.array([GNSS_GM + 2])]
+    block_ids = np.array([B_VEL_H, B_VEL_V, B_ATT_H, B_ATT_V, B_BG, B_BA, B_UNIT_LEVEL, B_UNIT_DRIFT, B_GNSS_GM_H,
+                          B_GNSS_GM_V])
     # scratch (no allocation per epoch besides the solve's): Φ P⁺, P_next - P⁻, products, the smoothed P
     PhiPp = np.empty((nx, nx))
     D = np.empty((nx, nx))
@@ -809,7 +927,7 @@ def rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, ep_outage, noise
             if aux_kind[k] == AUX_UNIT:
                 _measurement_statistic(e, cov, aux_r[k], 0, 2, stats, B_UNIT_R_LEVEL)
                 _measurement_statistic(e, cov, aux_r[k], 2, 3, stats, B_UNIT_R_YAW)
-            else:
+            elif aux_kind[k] == AUX_NHC:
                 _measurement_statistic(e, cov, aux_r[k], 0, 2, stats, B_NHC)
     return err_post, err_pre, stats
 

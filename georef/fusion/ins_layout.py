@@ -9,8 +9,10 @@ One order for the error state and the nominal state:
 * error state, estimate minus truth: ``δr`` NED position [m] (POS), ``δv`` NED velocity [m/s] (VEL), attitude
   ``φ`` [rad] with ``Ĉ_b_n = (I - [φ x]) C_b_n`` (ATT), gyro bias [rad/s] (BG), accelerometer bias [m/s^2] (BA),
   the POS unit's own roll/pitch errors [rad] (UNIT_LEVEL, Gauss-Markov), the offset ``d`` of its yaw origin
-  [rad] (UNIT_YAW) and that offset's drift rate [rad/s] (UNIT_DRIFT); with ``NX_CAL`` states also the GNSS lever
-  arm [m, body] (LEVER) and the GNSS time-tag latency [s] (LATENCY), random constants;
+  [rad] (UNIT_YAW) and that offset's drift rate [rad/s] (UNIT_DRIFT), the time-correlated part of the GNSS
+  position error [m, NED] (GNSS_GM, first-order Gauss-Markov: a receiver's fixes wander together over tens of
+  seconds, which white noise does not describe); with ``NX_CAL`` states also the GNSS lever arm [m, body] (LEVER)
+  and the GNSS time-tag latency [s] (LATENCY), random constants;
 * nominal state: the same order with latitude, longitude [rad] and ellipsoidal height [m] for the position and
   the body-to-NED quaternion (scalar first) for the attitude (``X_*`` indices, ``NS`` entries). The lever arm
   and latency are always carried in the nominal state; they are estimated only when the filter has ``NX_CAL``
@@ -26,10 +28,11 @@ BA = 12
 UNIT_LEVEL = 15
 UNIT_YAW = 17
 UNIT_DRIFT = 18
-LEVER = 19
-LATENCY = 22
-NX_NAV = 19
-NX_CAL = 23
+GNSS_GM = 19
+LEVER = 22
+LATENCY = 25
+NX_NAV = 22
+NX_CAL = 26
 
 # ---- nominal state (same order; quaternion for the attitude) ----------------------------------------------
 X_LAT = 0
@@ -42,9 +45,10 @@ X_BA = 13
 X_UNIT_LEVEL = 16
 X_UNIT_YAW = 18
 X_UNIT_DRIFT = 19
-X_LEVER = 20
-X_LATENCY = 23
-NS = 24
+X_GNSS_GM = 20
+X_LEVER = 23
+X_LATENCY = 26
+NS = 27
 
 # ---- noise vector (continuous-time densities, variances and scale factors) --------------------------------
 Q_VEL_H = 0        # m^2/s^3, white specific force, north and east
@@ -63,7 +67,12 @@ R_UNIT_YAW = 12    # rad^2, of its yaw
 R_SCALE_H = 13     # factor on the GNSS north/east variances
 R_SCALE_V = 14     # factor on the GNSS down variance
 R_NHC = 15         # m^2/s^2, non-holonomic constraint: variance of the body's lateral and vertical velocity
-N_NOISE = 16
+Q_GNSS_GM_H = 16   # m^2/s, drive of the correlated GNSS error, north and east
+Q_GNSS_GM_V = 17   # m^2/s, down
+INV_TAU_GNSS = 18  # 1/s, its inverse correlation time
+R_ZUPT = 19        # m^2/s^2, variance of the velocity of a vehicle standing still (zero-velocity update)
+R_ZARU = 20        # rad^2/s^2, variance of the epoch's mean angular rate of a vehicle standing still
+N_NOISE = 21
 
 # ---- noise blocks whose EM statistics the smoother adds up ------------------------------------------------
 B_GNSS_H = 0
@@ -80,15 +89,28 @@ B_UNIT_LEVEL = 10
 B_UNIT_DRIFT = 11
 B_NHC = 12
 B_OUTAGE = 13      # all process noise inside GNSS outages, pooled (a scale on top of the other blocks)
-N_BLOCKS = 14
+B_GNSS_GM_H = 14
+B_GNSS_GM_V = 15
+N_BLOCKS = 16
 
 # ---- kinds of the auxiliary (non-GNSS) updates ------------------------------------------------------------
 AUX_UNIT = 0       # the unit's roll, pitch, yaw (3)
 AUX_NHC = 1        # a ground vehicle's zero lateral and vertical body velocity (2)
+AUX_ZUPT = 2       # a vehicle standing still: zero NED velocity (3)
+AUX_ZARU = 3       # a vehicle standing still: no angular rate but the Earth's (3), which pins the gyro bias
+#: chi-square(3) gate of the zero-velocity update (1 - 1e-3): a vehicle read as still that moves is refused
+ZUPT_GATE = 16.27
 #: how far from the IMU the point is at which a ground vehicle has no lateral or vertical velocity [m]
 NHC_LEVER = 2.0
 #: chi-square(2) gate of the NHC update (1 - 1e-20)
 NHC_GATE = 92.1
+
+# ---- covariance propagation ---------------------------------------------------------------------------------
+#: the longest step [s] an epoch interval is propagated in; epochs are at most 0.5 s apart at the rates used, so
+#: only intervals stretched by sparse fixes are split
+STEP_S = 1.0
+#: the step [s] inside an IMU gap, where the navigation noise is raised to that of unknown motion
+GAP_STEP_S = 0.05
 
 # ---- GNSS fix status and why a forward pass stopped -------------------------------------------------------
 FIX_UNUSED = -1

@@ -29,6 +29,11 @@ from georef.imu_errors import ImuErrorModel
 
 #: prior sigma [m/s] of a ground vehicle's lateral and vertical body velocity (non-holonomic constraint)
 NHC_SIGMA = 0.1
+#: sigma [m/s] of the velocity of a vehicle standing still: the ground's give and the IMU's own vibration
+ZUPT_SIGMA = 0.02
+#: steady-state sigma [m] of the correlated GNSS error when the errors are white: a millimetre, so that its states
+#: keep a covariance the smoother can invert and change no result
+GNSS_GM_FLOOR_M = 1e-3
 #: the spectral floor of the IMU data is read above this frequency [Hz] (a vehicle's own motion is below it),
 #: from at most this many 4-s segments spread over the log
 MOTION_BAND_HZ = 2.0
@@ -48,12 +53,15 @@ BLOCK_FIELDS: dict[int, str] = {
     layout.B_UNIT_R_YAW: "r_unit_yaw", layout.B_VEL_H: "q_vel_h", layout.B_VEL_V: "q_vel_v", layout.B_ATT_H: "q_att_h",
     layout.B_ATT_V: "q_att_v", layout.B_BG: "q_bg", layout.B_BA: "q_ba", layout.B_UNIT_LEVEL: "q_unit_level",
     layout.B_UNIT_DRIFT: "q_unit_drift", layout.B_NHC: "r_nhc", layout.B_OUTAGE: "outage_scale",
+    layout.B_GNSS_GM_H: "q_gnss_gm_h", layout.B_GNSS_GM_V: "q_gnss_gm_v",
 }
 #: the white specific force and angular rate: taken from the spectrum of the data (:func:`data_prior`), not
 #: fitted to the innovations, which hardly see them and, on real data, mistake correlated GNSS errors for them
 WHITE_BLOCKS = (layout.B_VEL_H, layout.B_VEL_V, layout.B_ATT_H, layout.B_ATT_V)
 #: the block that only means something with the non-holonomic constraint
 NHC_BLOCKS = (layout.B_NHC,)
+#: the correlated GNSS error's blocks, estimated when the data favour that model (``ins._Estimation.gnss_model``)
+GNSS_GM_BLOCKS = (layout.B_GNSS_GM_H, layout.B_GNSS_GM_V)
 #: blocks that only mean something when the unit's attitude aids the filter
 UNIT_BLOCKS = (layout.B_UNIT_R_LEVEL, layout.B_UNIT_R_YAW, layout.B_UNIT_LEVEL, layout.B_UNIT_DRIFT)
 
@@ -80,6 +88,16 @@ class NoiseModel:
     r_nhc: float = NHC_SIGMA**2
     #: factor on all process noise inside GNSS outages (the error sources that show only without fixes)
     outage_scale: float = 1.0
+    #: the correlated part of the GNSS error: Gauss-Markov drives [m^2/s] (north/east, down), correlation time [s];
+    #: white errors keep a numerical floor of GNSS_GM_FLOOR_M (the smoother inverts the states' covariance)
+    q_gnss_gm_h: float = 2.0 * GNSS_GM_FLOOR_M**2 / 60.0
+    q_gnss_gm_v: float = 2.0 * GNSS_GM_FLOOR_M**2 / 60.0
+    tau_gnss: float = 60.0
+    #: velocity variance of a vehicle standing still [m^2/s^2] (zero-velocity updates)
+    r_zupt: float = ZUPT_SIGMA**2
+    #: angular-rate variance of one IMU row of a vehicle standing still [rad^2/s^2] (zero angular-rate updates):
+    #: the gyros' scatter there (:func:`still_rate_variance`)
+    r_zaru: float = 1e-4
 
     def as_array(self) -> np.ndarray:
         """The kernel's noise vector (``ins_kernel.N_NOISE`` entries in the order of its named indices)."""
@@ -93,6 +111,10 @@ class NoiseModel:
         out[layout.R_UNIT_LEVEL], out[layout.R_UNIT_YAW] = self.r_unit_level, self.r_unit_yaw
         out[layout.R_SCALE_H], out[layout.R_SCALE_V] = self.r_scale_h, self.r_scale_v
         out[layout.R_NHC] = self.r_nhc
+        out[layout.Q_GNSS_GM_H], out[layout.Q_GNSS_GM_V] = self.q_gnss_gm_h, self.q_gnss_gm_v
+        out[layout.INV_TAU_GNSS] = 1.0 / self.tau_gnss
+        out[layout.R_ZUPT] = self.r_zupt
+        out[layout.R_ZARU] = self.r_zaru
         if not np.all(np.isfinite(out)):
             raise AssertionError(f"noise vector slots left unset: {np.flatnonzero(~np.isfinite(out)).tolist()}")
         return out
@@ -104,6 +126,11 @@ class NoiseModel:
         return replace(self, **{BLOCK_FIELDS[b]: float(v) for b, v in values.items()})
 
     # readable figures for summaries and reports -----------------------------------------------------------
+    def gnss_gm_sigma(self) -> tuple[float, float]:
+        """Steady-state sigmas [m] of the correlated GNSS error, horizontal (per axis) and vertical."""
+        return (float(np.sqrt(self.q_gnss_gm_h * self.tau_gnss / 2.0)),
+                float(np.sqrt(self.q_gnss_gm_v * self.tau_gnss / 2.0)))
+
     @property
     def vrw_h(self) -> float:
         """Horizontal velocity random walk [m/s/sqrt(h)]."""
@@ -196,6 +223,31 @@ def consumer_bias_drives() -> tuple[float, float]:
     model = imu_preset("mems-consumer")
     return (2.0 * model.gyro_markov_sigma**2 / model.gyro_bias_corr_time_s,
             2.0 * model.accel_markov_sigma**2 / model.accel_bias_corr_time_s)
+
+
+#: the share of a fix's variance the correlated GNSS error starts with (the white rest keeps 1 - this); EM moves it
+GNSS_CORRELATED_SHARE = 0.5
+
+
+def with_gnss_correlation(noise: NoiseModel, sigma_h: float, sigma_v: float, tau: float) -> NoiseModel:
+    """``noise`` with the GNSS error split between a white part and a first-order Gauss-Markov part of correlation
+    time ``tau`` [s] (0: all white), GNSS_CORRELATED_SHARE of the typical fix variance (``sigma_h``, ``sigma_v``
+    [m], per axis) each at the start: a receiver's errors wander together over tens of seconds, and fixes
+    treated as independent make the filter follow the wander with sigmas far too small."""
+    if tau <= 0.0:
+        return noise
+    share = GNSS_CORRELATED_SHARE
+    return replace(noise, q_gnss_gm_h=2.0 * share * sigma_h**2 / tau, q_gnss_gm_v=2.0 * share * sigma_v**2 / tau,
+                   tau_gnss=float(tau), r_scale_h=noise.r_scale_h * (1.0 - share),
+                   r_scale_v=noise.r_scale_v * (1.0 - share))
+
+
+def still_rate_variance(gyro: np.ndarray, still: np.ndarray) -> float | None:
+    """The variance [rad^2/s^2] of one gyro sample of a vehicle standing still, from the still rows' scatter about
+    their mean (largest axis); None without still rows."""
+    if still is None or still.sum() < 10:
+        return None
+    return float(np.max(np.var(gyro[still], axis=0)))
 
 
 def inflated(noise: NoiseModel, factor: float) -> NoiseModel:

@@ -73,6 +73,28 @@ class ForwardSeparation:
 
 
 @dataclass
+class HeldOutCheck:
+    """How the solution predicts GNSS fixes it was not given (:func:`georef.fusion.ins.held_out_check`): the fixes
+    of ``windows`` [s] (``held`` of them) left out, the rest fused exactly as the delivered solution was, and the
+    left-out fixes predicted. ``error_rms_h`` [m] the horizontal RMS of prediction minus fix; ``interpolation_rms_h``
+    [m] the same for straight lines between the kept fixes on either side (what users did before); ``fix_sigma_h``
+    [m] the fixes' median horizontal sigma (their own, else configured); ``z_rms`` the rms of the horizontal
+    errors over their predicted sigma (the solution's and the fix's): 1 when the sigmas are honest;
+    ``window_error_rms_h`` and ``window_interpolation_rms_h`` [m] per window."""
+
+    windows: list[tuple[float, float]]
+    held: int
+    error_rms_h: float
+    interpolation_rms_h: float
+    fix_sigma_h: float
+    z_rms: float
+    window_error_rms_h: list[float]
+    window_interpolation_rms_h: list[float]
+    #: the filter diverged bridging the held-out windows (the figures are then NaN)
+    diverged: bool = False
+
+
+@dataclass
 class InsInfo:
     """What the full-state filters (``rts``, ``ekf``, and the EKF + RTS the graph starts from) leave beside the
     trajectory, at the N IMU rows unless said otherwise:
