@@ -71,5 +71,5 @@ def read_flight_log(path: Path | str, imu_instance: int | None = None) -> Flight
         from georef.io.logs.ardupilot import read_ardupilot
 
         return read_ardupilot(path, data, imu_instance)
-    raise InputError(path, None, None, "not an autopilot log: neither a PX4 ULog nor an ArduPilot DataFlash log "
-                     "(binary or text)")
+    raise InputError(path, None, None, "not an autopilot log: neither a PX4 ULog (its magic at byte 0) nor an "
+                     f"ArduPilot DataFlash log (binary or text: a FMT message in the first {SNIFF_BYTES} bytes)")

@@ -32,10 +32,21 @@ import numpy as np
 from georef.align import GnssEpochs
 from georef.frames.gpstime import gps_week_to_utc, leap_seconds_note, utc_day_start
 from georef.io.camera import FEEDBACK_TIME_SIGMA, TRIGGER_TIME_SIGMA, Exposures
-from georef.io.errors import InputError, InputNotice
+from georef.io.errors import InputError, InputNotice, excerpt
 from georef.io.logs.clock import ClockFit, fit_clock
 from georef.io.logs.dataflash import DataFlashLog, MessageTable, read_binary, read_text
-from georef.io.logs.flightlog import FlightLog, GnssReport, ImuStream, LeverArmParameter, Series, lever_arm_parameter
+from georef.io.logs.flightlog import (
+    FlightLog,
+    GnssReport,
+    ImuStream,
+    LeverArmParameter,
+    Series,
+    imu_notice,
+    lever_arm_parameter,
+    numeric_params,
+    usable_imu,
+    whole_numbers,
+)
 from georef.io.logs.gnss_heights import ellipsoidal_heights
 
 WANTED = ("IMU", "IMU2", "IMU3", "GPS", "GPS2", "GPA", "UBX3", "ATT", "AHR2", "MAG", "CAM", "TRIG", "PARM", "MSG",
@@ -48,11 +59,26 @@ MIN_FIX = 3
 DEFAULT_GPS_LAG_S = 0.12
 
 
+def _column(table: MessageTable, name: str, path: Path, text: bool = False) -> np.ndarray:
+    """Field ``name`` of every message of ``table`` (numbers, or ``text``); an error naming message and field when
+    the log's format of the message (its FMT message) has no such field, or holds text where a number belongs: a
+    damaged FMT, or a generation of ArduPilot this reader lacks."""
+    if name not in table.columns:
+        raise InputError(path, None, f"{table.name}.{name}", f"the log's format of {table.name} (its FMT message) "
+                         f"has no field {name}, only {excerpt(','.join(table.columns), 80)}")
+    values = table.columns[name]
+    if not text and values.dtype == object:
+        raise InputError(path, None, f"{table.name}.{name}", f"the log's format of {table.name} (its FMT message) "
+                         f"makes {name} text, not a number")
+    return values
+
+
 def _boot_seconds(table: MessageTable, path: Path) -> np.ndarray:
+    """Boot time [s] of every message of ``table``, from TimeUS [us] or TimeMS [ms]."""
     if table.has("TimeUS"):
-        return table.columns["TimeUS"] * 1e-6
+        return _column(table, "TimeUS", path) * 1e-6
     if table.has("TimeMS"):
-        return table.columns["TimeMS"] * 1e-3
+        return _column(table, "TimeMS", path) * 1e-3
     raise InputError(path, None, f"{table.name}.TimeUS", f"{table.name} messages carry no boot time (TimeUS or "
                      "TimeMS)")
 
@@ -63,8 +89,9 @@ def _instances(log: DataFlashLog, name: str) -> dict[int, tuple[MessageTable, np
     base = log.messages.get(name)
     if base is not None:
         if base.has("I"):
-            for instance in np.unique(base.columns["I"]).astype(int):
-                out[int(instance)] = (base, base.columns["I"] == instance)
+            numbers = whole_numbers(base.columns["I"])
+            for instance in np.unique(numbers):
+                out[int(instance)] = (base, numbers == instance)
         else:
             out[0] = (base, np.ones(len(base), bool))
     for k in (2, 3):
@@ -74,7 +101,10 @@ def _instances(log: DataFlashLog, name: str) -> dict[int, tuple[MessageTable, np
     return out
 
 
-def _imu(log: DataFlashLog, instance: int | None, clock: ClockFit, day: float) -> tuple[ImuStream, list[str]]:
+def _imu(log: DataFlashLog, instance: int | None, clock: ClockFit,
+         day: float) -> tuple[ImuStream, list[str], list[InputNotice]]:
+    """The IMU stream of ``instance`` (default 0), the streams the log has, and a notice of the samples left out
+    (not finite, repeated or out of time order)."""
     streams = _instances(log, "IMU")
     if not streams:
         raise InputError(log.path, None, "IMU", "the log has no IMU messages: set LOG_BITMASK to log IMU data")
@@ -84,22 +114,27 @@ def _imu(log: DataFlashLog, instance: int | None, clock: ClockFit, day: float) -
         raise InputError(log.path, None, "IMU.I", f"no IMU instance {chosen}; the log has {', '.join(names)}")
     table, rows = streams[chosen]
     boot = _boot_seconds(table, log.path)[rows]
-    gyro = np.stack([table.columns[f"Gyr{a}"][rows] for a in "XYZ"], -1)
-    accel = np.stack([table.columns[f"Acc{a}"][rows] for a in "XYZ"], -1)
+    gyro = np.stack([_column(table, f"Gyr{a}", log.path)[rows] for a in "XYZ"], -1)
+    accel = np.stack([_column(table, f"Acc{a}", log.path)[rows] for a in "XYZ"], -1)
     where = table.where[rows]
-    # a sample logged twice with one time stamp (a logger's repeat) is kept once
-    keep = np.concatenate([[True], np.diff(boot) > 0])
+    keep, non_finite = usable_imu(boot, gyro, accel)
+    name = f"IMU[{chosen}]"
+    if not keep.any():
+        raise InputError(log.path, None, "IMU.GyrX", f"{name} has no usable sample ({len(keep)} logged, "
+                         f"{non_finite} of them with a value that is not a finite number)")
+    notice = imu_notice(log.path, name, keep, non_finite, where, "byte" if log.binary else "line")
     time = clock.utc(boot[keep]) - day
-    return ImuStream(f"IMU[{chosen}]", time, gyro[keep], accel[keep], where[keep]), names
+    return ImuStream(name, time, gyro[keep], accel[keep], where[keep]), names, [notice] if notice else []
 
 
-def _gps_times(table: MessageTable, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, str]:
+def _gps_times(table: MessageTable, rows: np.ndarray, path: Path) -> tuple[np.ndarray, np.ndarray, str]:
     """(boot arrival [s], UTC [POSIX s], field name) of the fixes."""
     if table.has("GMS", "GWk"):
-        week, tow, field = table.columns["GWk"][rows], table.columns["GMS"][rows] * 1e-3, "GPS.GMS"
+        week, tow, field = _column(table, "GWk", path)[rows], _column(table, "GMS", path)[rows] * 1e-3, "GPS.GMS"
     else:
-        week, tow, field = table.columns["Week"][rows], table.columns["TimeMS"][rows] * 1e-3, "GPS.TimeMS"
-    arrival = table.columns["TimeUS"][rows] * 1e-6 if table.has("TimeUS") else table.columns["T"][rows] * 1e-3
+        week, tow, field = (_column(table, "Week", path)[rows], _column(table, "TimeMS", path)[rows] * 1e-3,
+                            "GPS.TimeMS")
+    arrival = _boot_seconds(table, path)[rows] if table.has("TimeUS") else _column(table, "T", path)[rows] * 1e-3
     utc = np.where(week > 0, gps_week_to_utc(week, tow), np.nan)
     return arrival, utc, field
 
@@ -109,14 +144,14 @@ def _accuracy(log: DataFlashLog, table: MessageTable, rows: np.ndarray, arrival:
     """(sigma_neu (K, 3) [m], the receiver's ellipsoidal minus mean-sea-level height (K,) [m] or None, source)
     from GPA (same boot time) or UBX3 (nearest)."""
     gpa = _instances(log, "GPA").get(instance)
-    if gpa is not None:
+    if gpa is not None and gpa[1].any():
         g_table, g_rows = gpa
         g_time = _boot_seconds(g_table, log.path)[g_rows]
         index = np.clip(np.searchsorted(g_time, arrival - 1e-6), 0, len(g_time) - 1)
         close = np.abs(g_time[index] - arrival) < 1e-3
-        h = np.where(close, g_table.columns["HAcc"][g_rows][index], np.nan)
-        v = np.where(close, g_table.columns["VAcc"][g_rows][index], np.nan)
-        separation = _receiver_separation(g_table, g_rows, index, close, table.columns["Alt"][rows])
+        h = np.where(close, _column(g_table, "HAcc", log.path)[g_rows][index], np.nan)
+        v = np.where(close, _column(g_table, "VAcc", log.path)[g_rows][index], np.nan)
+        separation = _receiver_separation(g_table, g_rows, index, close, _column(table, "Alt", log.path)[rows])
         return np.stack([h, h, v], -1), separation, "GPA.HAcc/VAcc"
     ubx = log.messages.get("UBX3")
     if ubx is not None and ubx.has("hAcc", "vAcc") and len(ubx):
@@ -150,12 +185,13 @@ def _receiver_separation(g_table: MessageTable, g_rows: np.ndarray, index: np.nd
     return None
 
 
-def _params(log: DataFlashLog) -> dict[str, float]:
+def _params(log: DataFlashLog) -> tuple[dict[str, float], list[InputNotice]]:
+    """The parameters (the last value of each), and a notice of those whose value is no finite number."""
     table = log.messages.get("PARM")
     if table is None:
-        return {}
-    return {str(name): float(value) for name, value in zip(table.columns["Name"], table.columns["Value"],
-                                                           strict=True)}
+        return {}, []
+    names, values = _column(table, "Name", log.path, text=True), _column(table, "Value", log.path)
+    return numeric_params(list(zip(names, values, strict=True)), log.path)
 
 
 def _lag(params: dict[str, float]) -> tuple[float, str]:
@@ -186,8 +222,8 @@ def _events(log: DataFlashLog, clock: ClockFit, day: float) -> tuple[Exposures |
         if table.has("TimeUS") or table.has("TimeMS"):
             utc = clock.utc(_boot_seconds(table, log.path))
         else:
-            utc = gps_week_to_utc(table.columns["GPSWeek"], table.columns["GPSTime"] * 1e-3)
-        numbers = table.columns["Img"].astype(int) if table.has("Img") else np.arange(1, len(table) + 1)
+            utc = gps_week_to_utc(_column(table, "GPSWeek", log.path), _column(table, "GPSTime", log.path) * 1e-3)
+        numbers = whole_numbers(table.columns["Img"]) if table.has("Img") else np.arange(1, len(table) + 1)
         for number, t, where in zip(numbers, utc, table.where, strict=True):
             found[int(number)] = (float(t) - day, int(where), name)
     if not found:
@@ -209,7 +245,7 @@ def _events(log: DataFlashLog, clock: ClockFit, day: float) -> tuple[Exposures |
 
 def _vehicle(log: DataFlashLog) -> str:
     msg = log.messages.get("MSG")
-    texts = [str(t) for t in msg.columns["Message"][:6]] if msg is not None else []
+    texts = [str(t) for t in msg.columns["Message"][:6]] if msg is not None and msg.has("Message") else []
     firmware = next((t for t in texts if any(w in t for w in ("Copter", "Plane", "Rover", "Sub", "APM"))), None)
     frame = next((t for t in texts if t.startswith("Frame")), None)
     return ", ".join(t for t in (firmware, frame) if t) or "ArduPilot"
@@ -228,29 +264,31 @@ def read_ardupilot(path: Path, data: bytes, imu_instance: int | None = None) -> 
         total = sum(n for _, n in log.skipped)
         notices.append(InputNotice(path, [], None, f"{total} {unit}(s) in {len(where)} run(s) were not messages and "
                                    f"were skipped (first at {unit} {where[0]}): a log cut short or corrupted there"))
-    params = _params(log)
+    params, param_notices = _params(log)
+    notices += param_notices
     gps = _instances(log, "GPS").get(0)
     if gps is None:
         raise InputError(path, None, "GPS", "the log has no GPS messages")
     table, rows = gps
-    status = table.columns["Status"][rows].astype(int)
-    arrival, utc, time_field = _gps_times(table, rows)
+    status = whole_numbers(_column(table, "Status", path)[rows])
+    arrival, utc, time_field = _gps_times(table, rows, path)
     good = status >= MIN_FIX
     if good.sum() < 2:
         raise InputError(path, None, "GPS.Status", f"{int(good.sum())} GPS fixes of type 3D or better among "
                          f"{len(status)}: nothing to georeference with")
     lag, lag_source = _lag(params)
     clock = fit_clock(path, arrival[good], utc[good], lag, lag_source, time_field)
-    day = utc_day_start(float(np.nanmin(utc[good])))
-    note = leap_seconds_note(float(np.nanmin(utc[good])))
+    day = utc_day_start(clock.first_utc)
+    note = leap_seconds_note(clock.first_utc)
     if note:
         notices.append(InputNotice(path, [], time_field, note))
-    imu, streams = _imu(log, imu_instance, clock, day)
+    imu, streams, imu_notices = _imu(log, imu_instance, clock, day)
+    notices += imu_notices
     gnss, report = _gnss(log, table, rows, status, arrival, utc, clock, day)
     attitude = None
     att = log.messages.get("ATT")
     if att is not None and len(att):
-        rpy = np.radians(np.stack([att.columns["Roll"], att.columns["Pitch"], att.columns["Yaw"]], -1))
+        rpy = np.radians(np.stack([_column(att, a, path) for a in ("Roll", "Pitch", "Yaw")], -1))
         attitude = Series("ATT", clock.utc(_boot_seconds(att, path)) - day, rpy)
     backup = None
     ahr2 = log.messages.get("AHR2")
@@ -262,7 +300,7 @@ def read_ardupilot(path: Path, data: bytes, imu_instance: int | None = None) -> 
     if m is not None:
         m_table, m_rows = m
         mag = Series("MAG", clock.utc(_boot_seconds(m_table, path)[m_rows]) - day,
-                     np.stack([m_table.columns[f"Mag{a}"][m_rows] for a in "XYZ"], -1))
+                     np.stack([_column(m_table, f"Mag{a}", path)[m_rows] for a in "XYZ"], -1))
     events, event_notices = _events(log, clock, day)
     notices += event_notices
     notices.append(InputNotice(path, [], time_field, clock.describe()))
@@ -277,25 +315,30 @@ def _gnss(log: DataFlashLog, table: MessageTable, rows: np.ndarray, status: np.n
           utc: np.ndarray, clock: ClockFit, day: float) -> tuple[GnssEpochs, GnssReport]:
     """The fixes of type 3D or better, each at its receiver time (or, where that is missing or repeats a time
     already used, at its arrival through the clock), ellipsoidal heights, per-fix sigmas."""
-    lat = table.columns["Lat"][rows]
-    lon = table.columns["Lng"][rows]
-    alt = table.columns["Alt"][rows]
+    lat = _column(table, "Lat", log.path)[rows]
+    lon = _column(table, "Lng", log.path)[rows]
+    alt = _column(table, "Alt", log.path)[rows]
     sigma, undulation, sigma_source = _accuracy(log, table, rows, arrival, 0)
     counts = Counter(FIX_NAMES.get(int(s), f"status {int(s)}") for s in status)
     good = status >= MIN_FIX
     fitted = clock.utc(arrival - clock.lag_s)
     time = np.where(np.isfinite(utc) & (np.abs(utc - fitted) < 0.5), utc, fitted)
     usable = np.flatnonzero(good & np.isfinite(time) & (np.abs(lat) <= 90) & (np.abs(lon) <= 180)
-                            & ~((lat == 0) & (lon == 0)))
+                            & ~((lat == 0) & (lon == 0)) & np.isfinite(alt))
     usable = usable[np.argsort(time[usable], kind="stable")]
     # a receiver time already used is the receiver repeating itself: the repeat is not a new fix
-    usable = usable[np.concatenate([[True], np.diff(time[usable]) > 0])]
+    usable = usable[np.concatenate([[True], np.diff(time[usable]) > 0])[:len(usable)]]
+    if len(usable) < 2:
+        raise InputError(log.path, None, "GPS.Lat", f"{len(usable)} of the {int(good.sum())} fixes of type 3D or "
+                         "better have a time, a position in range and a height: nothing to georeference with")
     keep = np.zeros(len(status), bool)
     keep[usable] = True
     height, height_source = ellipsoidal_heights(lat[keep], lon[keep], alt[keep],
                                                 None if undulation is None else undulation[keep], "GPS.Alt")
     order = np.argsort(time[keep], kind="stable")
     sig = None if sigma is None else sigma[keep][order]
+    if sig is not None:  # 0 is what ArduPilot logs when the receiver gives no accuracy: unknown, as NaN is
+        sig = np.where(np.isfinite(sig) & (sig > 0), sig, np.nan)
     if sig is not None and not np.isfinite(sig).any():
         sig, sigma_source = None, None
     gnss = GnssEpochs(time=(time[keep] - day)[order], lat_deg=lat[keep][order], lon_deg=lon[keep][order],

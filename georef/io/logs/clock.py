@@ -24,6 +24,9 @@ CLOCK_OUTLIER_SIGMAS = 5.0
 CLOCK_OUTLIER_MIN_S = 0.05
 #: a rate further than this from 1 is reported (a clock that is not a crystal's)
 RATE_NOTICE = 1e-3
+#: the rates a boot clock can have against UTC: 12/13 is the slowest met (see above); beyond, the fixes' times or
+#: the boot times are damaged
+RATE_RANGE = (0.5, 2.0)
 
 
 @dataclass(frozen=True)
@@ -40,6 +43,8 @@ class ClockFit:
     outliers: int
     lag_s: float
     lag_source: str
+    #: the earliest UTC [POSIX s] of the fixes the fit kept (not of an outlier)
+    first_utc: float = float("nan")
 
     def utc(self, boot: np.ndarray | float) -> np.ndarray:
         """UTC [POSIX s] of boot-clock times [s]."""
@@ -56,7 +61,8 @@ def fit_clock(path: object, boot_arrival: np.ndarray, utc: np.ndarray, lag_s: fl
               field: str) -> ClockFit:
     """The boot clock -> UTC mapping from fixes logged at boot times ``boot_arrival`` [s] whose receiver time is
     ``utc`` [POSIX s]. Robust: fixes far off the line (a stale time of week, a receiver restart) are left out.
-    Raises :class:`InputError` naming ``field`` when fewer than two usable fixes remain."""
+    Raises :class:`InputError` naming ``field`` when fewer than two usable fixes remain, or when the fit makes the
+    boot clock run at a rate outside :data:`RATE_RANGE` (damaged times)."""
     boot = np.asarray(boot_arrival, dtype=float) - lag_s
     utc = np.asarray(utc, dtype=float)
     ok = np.isfinite(boot) & np.isfinite(utc)
@@ -75,6 +81,10 @@ def fit_clock(path: object, boot_arrival: np.ndarray, utc: np.ndarray, lag_s: fl
         if new_keep.sum() < 2 or np.array_equal(new_keep, keep):
             break
         keep = new_keep
+    if not RATE_RANGE[0] <= rate <= RATE_RANGE[1]:
+        raise InputError(path, None, field, f"over the {int(keep.sum())} fixes fitted, the boot clock would run at "
+                         f"{rate:.3g} times UTC: the fixes' times or their boot times are damaged")
     rms = float(np.sqrt(np.mean(residual[keep] ** 2)))
     return ClockFit(offset=float(offset), rate=float(rate), boot_ref=boot_ref, residual_s=rms, fixes=int(keep.sum()),
-                    outliers=int(ok.sum() - keep.sum()), lag_s=float(lag_s), lag_source=lag_source)
+                    outliers=int(ok.sum() - keep.sum()), lag_s=float(lag_s), lag_source=lag_source,
+                    first_utc=float(utc[keep].min()))

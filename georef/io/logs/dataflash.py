@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from georef.io.errors import InputError
+from georef.io.errors import InputError, excerpt
 
 #: format character -> (numpy type, scale applied to the stored value); strings have scale None
 FORMAT_TYPES: dict[str, tuple[str, float | None]] = {
@@ -31,6 +31,12 @@ FORMAT_TYPES: dict[str, tuple[str, float | None]] = {
     "E": ("<u4", 0.01), "L": ("<i4", 1e-7), "M": ("u1", 1.0), "q": ("<i8", 1.0), "Q": ("<u8", 1.0),
     "g": ("<f2", 1.0),
 }
+#: whole-number format character -> (lowest, highest) value its field can hold, scaled
+WHOLE_NUMBER_RANGES: dict[str, tuple[float, float]] = {
+    char: (float(np.iinfo(np.dtype(kind).base).min) * scale, float(np.iinfo(np.dtype(kind).base).max) * scale)
+    for char, (kind, scale) in FORMAT_TYPES.items() if scale is not None and np.dtype(kind).base.kind in "iu"}
+#: the whole-number format characters stored unscaled: their text holds no fraction
+UNSCALED_WHOLE_NUMBERS = frozenset(char for char in WHOLE_NUMBER_RANGES if FORMAT_TYPES[char][1] == 1.0)
 HEADER_BYTES = 3
 FMT_TYPE = 128
 
@@ -90,14 +96,20 @@ def is_text_dataflash(head: bytes) -> bool:
     return any(line.replace(" ", "").startswith("FMT,128,89,FMT,") for line in text.splitlines()[:20])
 
 
-def _format_dtype(fmt: MessageFormat) -> np.dtype | None:
-    """The packed little-endian body of a message type, or None when a character is unknown."""
-    try:
-        fields = [(name, FORMAT_TYPES[char][0]) for name, char in zip(fmt.columns, fmt.format, strict=False)]
-    except KeyError:
-        return None
-    dtype = np.dtype(fields)
-    return dtype if dtype.itemsize == fmt.length - HEADER_BYTES else None
+def _format_dtype(fmt: MessageFormat) -> np.dtype:
+    """The packed little-endian body of a message type; ValueError saying what its FMT message gets wrong (an
+    unknown type character, a field name empty or repeated, fields that do not add up to the declared length)."""
+    unknown = "".join(sorted(set(fmt.format) - set(FORMAT_TYPES)))
+    if unknown:
+        raise ValueError(f"format {fmt.format!r} has type characters DataFlash does not define: {unknown!r}")
+    names = fmt.columns[:len(fmt.format)]
+    if len(set(names)) < len(names) or not all(names):
+        raise ValueError(f"field names {excerpt(','.join(fmt.columns), 80)} hold an empty or repeated one")
+    dtype = np.dtype([(name, FORMAT_TYPES[char][0]) for name, char in zip(names, fmt.format, strict=False)])
+    if dtype.itemsize != fmt.length - HEADER_BYTES:
+        raise ValueError(f"format {fmt.format!r} of {len(names)} fields does not add up to the declared "
+                         f"{fmt.length} bytes")
+    return dtype
 
 
 def _parse_formats(data: np.ndarray, offsets: np.ndarray) -> dict[int, MessageFormat]:
@@ -112,10 +124,8 @@ def _parse_formats(data: np.ndarray, offsets: np.ndarray) -> dict[int, MessageFo
     return formats
 
 
-def _binary_table(data: np.ndarray, fmt: MessageFormat, offsets: np.ndarray) -> MessageTable | None:
+def _binary_table(data: np.ndarray, fmt: MessageFormat, offsets: np.ndarray) -> MessageTable:
     dtype = _format_dtype(fmt)
-    if dtype is None:
-        return None
     index = offsets[:, None] + HEADER_BYTES + np.arange(dtype.itemsize)
     records = np.ascontiguousarray(data[index]).view(dtype).reshape(-1)
     columns: dict[str, np.ndarray] = {}
@@ -125,7 +135,8 @@ def _binary_table(data: np.ndarray, fmt: MessageFormat, offsets: np.ndarray) -> 
         if scale is None:
             columns[name] = np.array([v.decode("latin-1").strip("\x00") for v in values], dtype=object)
         elif values.ndim == 1:
-            columns[name] = values.astype(float) * scale if scale != 1.0 else values.astype(float)
+            with np.errstate(invalid="ignore"):  # a signalling NaN (any bit pattern may be one) is NaN all the same
+                columns[name] = values.astype(float) * scale if scale != 1.0 else values.astype(float)
     return MessageTable(fmt.name, columns, offsets.copy())
 
 
@@ -144,18 +155,25 @@ def read_binary(path: Path, data: bytes, wanted: Iterable[str]) -> DataFlashLog:
         fmt = by_name.get(name)
         if fmt is None:
             continue
-        table = _binary_table(buffer, fmt, offsets[types == fmt.type_id])
-        if table is None:
-            raise InputError(path, None, f"FMT {name}", f"format {fmt.format!r} of {len(fmt.columns)} fields does "
-                             f"not add up to the declared {fmt.length} bytes")
-        messages[name] = table
+        try:
+            messages[name] = _binary_table(buffer, fmt, offsets[types == fmt.type_id])
+        except ValueError as exc:
+            raise InputError(path, None, f"FMT {name}", str(exc)) from None
     return DataFlashLog(path, True, by_name, messages, list(zip(skip_at.tolist(), skip_len.tolist(), strict=True)))
 
 
 def _text_value(text: str, char: str) -> object:
+    """A field of a text line, scaled; ValueError when it is no number, or one the field's binary type could not
+    hold (a whole-number field's NaN, inf, out-of-range or fractional value): the line is damaged."""
     if FORMAT_TYPES.get(char, ("", 1.0))[1] is None:
         return text
-    return float(text)
+    value = float(text)
+    bounds = WHOLE_NUMBER_RANGES.get(char)
+    if bounds is not None and not bounds[0] <= value <= bounds[1]:
+        raise ValueError(f"{text!r} is out of the range of format character {char!r}")
+    if char in UNSCALED_WHOLE_NUMBERS and not value.is_integer():
+        raise ValueError(f"{text!r} is not a whole number, as format character {char!r} holds")
+    return value
 
 
 def read_text(path: Path, text: str, wanted: Iterable[str]) -> DataFlashLog:

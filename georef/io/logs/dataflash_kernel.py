@@ -4,7 +4,8 @@ A binary DataFlash log is a run of messages, each ``0xA3 0x95 <type>`` followed 
 itself defines: the ``FMT`` message (type 128, 89 bytes) gives each type's total length, and FMT messages may
 come anywhere before the type's first use. The walk keeps that table as it goes and returns every message's
 offset and type; bytes that do not start a known message are skipped one by one until the next header, and
-counted with the offset where each skipped run began (a log cut by a power loss, a corrupt sector).
+counted with the offset where each skipped run began (a log cut by a power loss, a corrupt sector). FMT's own
+length is fixed (89 bytes): a FMT message that would change it is damaged, and the walk does not follow it.
 
 pymavlink's ``DFReader_binary`` walks the same way in Python at about 1 s per MB (measured on a 3 MB ArduCopter
 log: 1.1 s to index, 1.8 s to read five message types); this walk takes milliseconds, and the bodies are then
@@ -49,7 +50,8 @@ def scan(data: np.ndarray, lengths: np.ndarray, limit: int) -> tuple[np.ndarray,
             kind = data[pos + 2]
             length = lengths[kind]
             if length >= 3 and pos + length <= n:
-                if kind == FMT_TYPE and length >= 5 and data[pos + 4] >= 3:
+                if kind == FMT_TYPE and length >= 5 and data[pos + 4] >= 3 and \
+                        (data[pos + 3] != FMT_TYPE or data[pos + 4] == FMT_LENGTH):
                     lengths[data[pos + 3]] = data[pos + 4]
                 offsets = _room(offsets, count)
                 types = _room(types, count)

@@ -17,7 +17,7 @@ import numpy as np
 from georef.align import GnssEpochs, TimeRepairReport
 from georef.frames.rotations import wrap_pi
 from georef.io.camera import Exposures
-from georef.io.errors import InputNotice
+from georef.io.errors import InputNotice, excerpt
 from georef.io.logs.clock import ClockFit
 from georef.io.pos import PosLog
 
@@ -102,12 +102,99 @@ def lever_arm_parameter(params: dict[str, float], antenna: list[str], imu: list[
     return LeverArmParameter(tuple(float(v) for v in arm), text)
 
 
+def in_time_order(time: np.ndarray) -> np.ndarray:
+    """Mask of the samples that make ``time`` [s] strictly increase: all of them when it already does; a sample
+    logged twice with one time stamp (a logger's repeat) is kept once; else the longest strictly increasing run of
+    samples, so that a time stamp that went back, or a lone one far ahead (a damaged log), loses that sample and
+    not the ones after it. Non-finite times are left out."""
+    time = np.asarray(time, dtype=float)
+    finite = np.isfinite(time)
+    if finite.all():
+        steps = np.diff(time)
+        if np.all(steps >= 0):
+            return np.concatenate([[True], steps > 0])[:len(time)]
+    return _longest_increasing(time, np.flatnonzero(finite))
+
+
+def _longest_increasing(time: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """Mask of a longest strictly increasing subsequence of ``time[candidates]`` (patience sorting, O(n log n))."""
+    from bisect import bisect_left
+
+    tails: list[float] = []           # the smallest last time of an increasing run of each length
+    ends: list[int] = []              # the index (into candidates) where that run ends
+    previous = np.full(len(candidates), -1, dtype=np.int64)
+    for k, t in enumerate(time[candidates].tolist()):
+        j = bisect_left(tails, t)
+        if j == len(tails):
+            tails.append(t)
+            ends.append(k)
+        else:
+            tails[j], ends[j] = t, k
+        previous[k] = ends[j - 1] if j else -1
+    keep = np.zeros(len(time), bool)
+    k = ends[-1] if ends else -1
+    while k >= 0:
+        keep[candidates[k]] = True
+        k = previous[k]
+    return keep
+
+
 def rows_of(series: Series, time: np.ndarray, angles: bool = False) -> np.ndarray:
-    """``series`` interpolated linearly onto ``time`` [s] (N, 3); NaN outside its span. ``angles``: radians,
-    interpolated on their unwrapped values and wrapped to (-pi, pi]."""
-    values = np.unwrap(series.values, axis=0) if angles else series.values
-    out = np.stack([np.interp(time, series.time, values[:, k], left=np.nan, right=np.nan) for k in range(3)], -1)
+    """``series`` interpolated linearly onto ``time`` [s] (N, 3); NaN outside its span (all NaN when the series
+    is empty). ``angles``: radians, interpolated on their unwrapped values and wrapped to (-pi, pi]. Samples out
+    of time order are left out (:func:`in_time_order`)."""
+    keep = in_time_order(series.time)
+    if not keep.any():
+        return np.full((len(time), 3), np.nan)
+    values = np.unwrap(series.values[keep], axis=0) if angles else series.values[keep]
+    out = np.stack([np.interp(time, series.time[keep], values[:, k], left=np.nan, right=np.nan)
+                    for k in range(3)], -1)
     return wrap_pi(out) if angles else out
+
+
+def whole_numbers(values: np.ndarray) -> np.ndarray:
+    """Whole numbers (int64) of a field: its values rounded towards zero, -1 where a value is not a finite number
+    below 2^62 (a damaged format can make an integer field a float one)."""
+    values = np.asarray(values, dtype=float)
+    good = np.isfinite(values) & (np.abs(values) < 2.0**62)
+    return np.where(good, values, -1.0).astype(np.int64)
+
+
+def numeric_params(items: list[tuple[object, object]], path: Path) -> tuple[dict[str, float], list[InputNotice]]:
+    """The parameters (name, value) that are finite numbers, and a notice naming the others (damaged parameter
+    messages): they are left out, as if the log did not set them."""
+    params: dict[str, float] = {}
+    bad: list[str] = []
+    for name, value in items:
+        if isinstance(value, int | float | np.integer | np.floating) and np.isfinite(value):
+            params[str(name)] = float(value)
+        else:
+            bad.append(str(name))
+    if not bad:
+        return params, []
+    return params, [InputNotice(path, [], None, f"{len(bad)} parameter(s) whose value is no finite number left out "
+                                f"(damaged parameter messages): {excerpt(', '.join(bad), 120)}")]
+
+
+def usable_imu(boot: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> tuple[np.ndarray, int]:
+    """(mask of the IMU samples to use, how many of them were left out for a non-finite value) of samples at boot
+    times ``boot`` [s]: finite ones, in time order (:func:`in_time_order`)."""
+    finite = np.isfinite(gyro).all(axis=1) & np.isfinite(accel).all(axis=1)
+    keep = np.zeros(len(boot), bool)
+    keep[finite] = in_time_order(boot[finite])
+    return keep, int((~finite).sum())
+
+
+def imu_notice(path: Path, name: str, keep: np.ndarray, non_finite: int, where: np.ndarray,
+               unit: str) -> InputNotice | None:
+    """The notice of the IMU samples :func:`usable_imu` left out (None: none); ``where`` each sample's position in
+    the log, counted in ``unit`` ("byte", "line", "message")."""
+    out = np.flatnonzero(~keep)
+    if len(out) == 0:
+        return None
+    first = f"first at {unit} {int(where[out[0]])}"
+    return InputNotice(path, [], name, f"{len(out)} of {len(keep)} samples left out ({non_finite} with a value "
+                       f"that is not a finite number, the others repeated or out of time order; {first})")
 
 
 def to_pos_log(log: FlightLog) -> PosLog:
