@@ -2,9 +2,15 @@
 
 Each flight (``SimConfig.for_vehicle("drone", seed=k, start=...)``: ground phase, spin-up, lift-off jolt, hover,
 survey legs; rotor vibration, thermal IMU bias, 5 Hz fixes tagged at arrival with correlated errors; camera
-triggers 0.1-0.2 s before each exposure) is written as imu.csv, gnss.csv and events.csv of *trigger* times, and
-processed with ``process_generic`` (the exposure times' default sigma of 0.1 s, the lever arm given, the IMU
-preset as chosen here). Against the truth it prints per flight and pooled:
+triggers 0.1-0.2 s before each exposure) is processed as a drone surveyor would, with the exposures given as
+events.csv of *trigger* times (no time_sigma column: the default 0.1 s):
+
+* ``--input log`` (default): an ArduPilot DataFlash log (its GPS_DELAY_MS, lever-arm parameters and the
+  ``autopilot`` preset, as ``georef process flight.bin --events events.csv`` takes them);
+* ``--input generic``: imu.csv and gnss.csv (fixes tagged at arrival, the receiver's delay unknown to georef),
+  the lever arm given, the IMU preset ``--preset``.
+
+Against the truth it prints per flight and pooled:
 
 * roll and pitch at the navigation rows (10 Hz, from the first fix to the end: ground, hover and flight): the
   share of errors inside 2 sigma, rms(error / sigma), the largest tilt error (the angle between the true and
@@ -16,7 +22,7 @@ The issue's targets: roll/pitch 88-99 % inside 2 sigma pooled, rms(error/sigma) 
 error above 30 deg, camera positions inside 2 sigma in >= 88 % of frames pooled.
 
 Usage: python benchmarks/drone_monte_carlo.py [--seeds 1 2 ...] [--starts ground hover] [--jobs 2]
-       [--preset autopilot] [--duration 240]
+       [--input log|generic] [--preset autopilot] [--duration 240]
 """
 
 from __future__ import annotations
@@ -80,20 +86,27 @@ def _frame_figures(flight, table: pd.DataFrame) -> dict[str, object]:
             "max_tilt_frames_deg": float(np.max(tilt))}
 
 
-def run_flight(seed: int, start: str, duration_s: float, preset: str) -> dict[str, object]:
+def run_flight(seed: int, start: str, duration_s: float, preset: str, source: str) -> dict[str, object]:
     """Simulate, write, process and score one flight (module doc)."""
     from georef.config import ProcessingConfig
-    from georef.pipeline import process_generic
+    from georef.pipeline import process_generic, process_log
     from georef.qc import assess_result
+    from georef.sim.autopilot_logs import write_dataflash
     from georef.sim.files import write_generic
     from georef.sim.flight import SimConfig, simulate
 
     flight = simulate(SimConfig.for_vehicle("drone", duration_s=duration_s, seed=seed, start=start))
     with tempfile.TemporaryDirectory(prefix="georef-drone-mc-") as folder:
         paths = write_generic(flight, Path(folder))
-        cfg = ProcessingConfig().updated(lever_arm_gnss=tuple(flight.config.lever_arm_gnss_m), imu_preset=preset)
         begin = time.perf_counter()
-        result = process_generic(paths["imu.csv"], paths["gnss.csv"], paths["events.csv"], cfg)
+        if source == "log":
+            log = Path(folder) / "flight.bin"
+            write_dataflash(flight, log, capture_delay_s=float(flight.config.camera_trigger.latency_s))
+            result = process_log(log, ProcessingConfig(), paths["events.csv"])
+        else:
+            cfg = ProcessingConfig().updated(lever_arm_gnss=tuple(flight.config.lever_arm_gnss_m),
+                                             imu_preset=preset)
+            result = process_generic(paths["imu.csv"], paths["gnss.csv"], paths["events.csv"], cfg)
         seconds = time.perf_counter() - begin
     verdict = assess_result(result)
     return {"seed": seed, "start": start, "latency_s": float(flight.config.camera_trigger.latency_s),
@@ -134,12 +147,14 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=list(range(1, 26)))
     parser.add_argument("--starts", nargs="+", default=["ground", "hover"], choices=["ground", "hover"])
     parser.add_argument("--duration", type=float, default=240.0, help="flight length [s]")
-    parser.add_argument("--preset", default="autopilot", help="the IMU preset given to georef")
+    parser.add_argument("--preset", default="autopilot", help="the IMU preset given to georef (generic input)")
+    parser.add_argument("--input", default="log", choices=["log", "generic"], help="what georef is given")
     parser.add_argument("--jobs", type=int, default=2)
     args = parser.parse_args()
     cases = [(seed, start) for start in args.starts for seed in args.seeds]
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        futures = [pool.submit(run_flight, seed, start, args.duration, args.preset) for seed, start in cases]
+        futures = [pool.submit(run_flight, seed, start, args.duration, args.preset, args.input)
+                   for seed, start in cases]
         rows = [future.result() for future in futures]
     _summary(rows)
 

@@ -95,8 +95,12 @@ def camera_eo_table(exposures: Exposures, states: ExposureStates, gnss: GnssEpoc
 
 def camera_eo_columns(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, mounting: MountingSection,
                       output: OutputSection | None = None, outage_min_s: float = 2.5,
-                      frames: OutputFrames | None = None, image_names: ImageNames | None = None) -> EoColumns:
+                      frames: OutputFrames | None = None, image_names: ImageNames | None = None,
+                      position_lag_s: float = 0.0) -> EoColumns:
     """The EO table of every exposure, as columns (rows outside the navigation span have empty values and a flag).
+
+    ``position_lag_s`` [s]: a GNSS latency the run did not apply (:func:`georef.qc.unapplied_latency`); each
+    camera position's variance gains the IMU's velocity times it, squared.
 
     Flags (joined by ``"; "``): outside the navigation span; in a GNSS outage of at least ``outage_min_s`` [s];
     more than ``outage_min_s`` after the last GNSS fix or before the first one (with the seconds of inertial-only
@@ -143,6 +147,10 @@ def camera_eo_columns(exposures: Exposures, states: ExposureStates, gnss: GnssEp
             euler_sigma = states.att_sigma[inside]
             att_cov_n = np.einsum("ni,ij->nij", att_var, np.eye(3))
         pos_var = states.pos_var_n[inside] + lever_var
+        if position_lag_s:
+            # a GNSS latency the data show and the run did not apply: the solution trails by the speed times it
+            v_imu = np.einsum("nij,nj->ni", C_e_n(lat_i, lon_i), states.v_e[inside])
+            pos_var = pos_var + (v_imu * position_lag_s) ** 2
         time_sigma = None if exposures.time_sigma is None else np.asarray(exposures.time_sigma, float)[inside]
         if time_sigma is not None and states.omega_n is not None:
             # an exposure time known to sigma_t moves the camera by its velocity (the IMU's plus omega x lever) times

@@ -39,6 +39,7 @@ from georef.io.errors import GeorefError, InputNotice
 from georef.io.events import read_events
 from georef.io.image_names import ImageNames
 from georef.io.pos import PosLog, read_pos
+from georef.qc import unapplied_latency
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -128,8 +129,34 @@ class ProcessResult:
             "method": self.nav.method,
         }
         summary.update(solution_figures(self.nav, self.config.gnss, self.log.gnss.sigma_neu))
+        summary.update(_flight_figures(self.flight))
         summary.update(geodesy_figures(self.frames, self.columns))
         return summary
+
+
+def _held_out_figures(held: object) -> dict[str, object]:
+    """The held-out check's figures (:class:`georef.fusion.solution.HeldOutCheck`), None where it did not run."""
+    if held is None:
+        return {"held_out_fixes": None, "held_out_error_m": None, "held_out_interpolation_m": None,
+                "held_out_z": None, "held_out_diverged": None}
+
+    def number(value: float) -> float | None:
+        return float(value) if np.isfinite(value) else None
+
+    return {"held_out_fixes": int(held.held), "held_out_error_m": number(held.error_rms_h),
+            "held_out_interpolation_m": number(held.interpolation_rms_h), "held_out_z": number(held.z_rms),
+            "held_out_diverged": bool(held.diverged)}
+
+
+def _flight_figures(flight: FlightLog | None) -> dict[str, object]:
+    """An autopilot log's facts for the summary: its kind and vehicle, the IMU stream used, the boot clock's rate
+    against UTC [ppm] and the fix messages' arrival jitter [s], and the fix types counted (None without a log)."""
+    if flight is None:
+        return {"log_kind": None, "vehicle": None, "imu_stream": None, "clock_rate_ppm": None,
+                "clock_jitter_s": None, "gnss_fix_types": None}
+    return {"log_kind": flight.kind, "vehicle": flight.vehicle, "imu_stream": flight.imu.name,
+            "clock_rate_ppm": float((flight.clock.rate - 1.0) * 1e6), "clock_jitter_s": float(flight.clock.residual_s),
+            "gnss_fix_types": dict(flight.gnss_report.fix_types)}
 
 
 def geodesy_figures(frames: OutputFrames | None, table: Mapping[str, object]) -> dict[str, object]:
@@ -199,6 +226,9 @@ def solution_figures(nav: NavSolution, gnss: GnssSection, fix_sigma: np.ndarray 
         "gnss_sigma_fitted_m": tuple(float(v) for v in sigma * scale),
         "vrw_m_s_sqrt_h": float(noise.vrw_h), "arw_deg_sqrt_h": float(noise.arw_h),
         "ground_vehicle": bool(diagnostics.ground_vehicle),
+        "gnss_error_model": "white + Gauss-Markov" if getattr(diagnostics, "gnss_correlated", False) else "white",
+        "still_spans_s": [tuple(float(v) for v in span) for span in (getattr(diagnostics, "still_spans", None) or [])],
+        **_held_out_figures(getattr(diagnostics, "held_out", None)),
     }
     ins_info = nav.ins_info
     if diagnostics.unit_aiding and ins_info is not None and len(ins_info.epoch_sigma):
@@ -326,7 +356,7 @@ def _georeference(log: PosLog, exposures: Exposures, cfg: ProcessingConfig, fram
     say("interpolating to exposures")
     states = interpolate_to_exposures(nav, exposures.time)
     columns = camera_eo_columns(exposures, states, log.gnss, cfg.mounting, cfg.output, frames=frames,
-                                image_names=image_names)
+                                image_names=image_names, position_lag_s=unapplied_latency(nav, cfg.gnss.latency))
     timings["interpolate"] = time.perf_counter() - start
     return ProcessResult(columns=columns, nav=nav, log=log, exposures=exposures, config=cfg,
                          notices=[*log.notices, *exposures.notices], timings=timings, frames=frames, flight=flight)

@@ -475,6 +475,18 @@ def check_graph_lever_arm(nav: NavSolution) -> Check | None:
     return Check("lever arm", PASS, f"{text}; {ekf_text}, in agreement")
 
 
+def unapplied_latency(nav: NavSolution, given: float | None) -> float:
+    """The GNSS time-tag latency [s] the data show and the run did not apply: the calibration pass's estimate when
+    the user gave none (``given``) and it is significant (LATENCY_SIGMAS sigma and LATENCY_MIN_S), else 0. The
+    solution trails the truth by about that times the speed, which the EO sigmas then carry."""
+    diagnostics = nav.diagnostics
+    if given is not None or diagnostics is None or getattr(diagnostics, "calibration", None) is None:
+        return 0.0
+    value = float(diagnostics.calibration.latency)
+    sigma = float(diagnostics.calibration.latency_sigma)
+    return value if abs(value) > LATENCY_SIGMAS * sigma and abs(value) > LATENCY_MIN_S else 0.0
+
+
 def check_latency(nav: NavSolution, cfg: ProcessingConfig | None = None) -> Check | None:
     """``latency``: the calibration pass's GNSS time-tag latency, when the user gave none (it is then not
     applied). Without ``cfg``, a latency applied as 0 counts as not given."""
@@ -487,9 +499,10 @@ def check_latency(nav: NavSolution, cfg: ProcessingConfig | None = None) -> Chec
     value = float(diagnostics.calibration.latency)
     sigma = float(diagnostics.calibration.latency_sigma)
     figures = f"the data show a GNSS time-tag latency of {value:.3f} +- {sigma:.3f} s"
-    if abs(value) > LATENCY_SIGMAS * sigma and abs(value) > LATENCY_MIN_S:
+    if unapplied_latency(nav, None):
         return Check("latency", WARN, f"{figures} (the fix measured that long before its time tag); it was not "
-                     f"applied. If the receiver's time tags are known to lag, apply it with --gnss-latency "
+                     "applied, and the EO sigmas carry the position it moves (the speed times it). If the "
+                     f"receiver's time tags are known to lag, apply it with --gnss-latency "
                      f"{value:.3f} ([gnss] gnss_latency) and check that the innovations improve; an estimate that "
                      "trades off against the lever arm's forward component is not worth applying.")
     return Check("latency", PASS, f"{figures}: not significant (not applied)")

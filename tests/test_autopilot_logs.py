@@ -24,6 +24,7 @@ from pymavlink.DFReader import DFReader_binary, DFReader_text
 from pyulog import ULog
 
 from georef.frames.gpstime import GPS_EPOCH
+from georef.io.camera import FEEDBACK_TIME_SIGMA, TRIGGER_TIME_SIGMA
 from georef.io.logs.ardupilot import DEFAULT_GPS_LAG_S, read_ardupilot
 from georef.io.logs.dataflash import read_binary
 from georef.io.logs.px4 import read_px4
@@ -205,6 +206,8 @@ def test_ardupilot_4x_reader_gives_back_the_flight(logs, flight, name):
     np.testing.assert_allclose(log.lever_arm.lever_arm, flight.config.lever_arm_gnss_m, rtol=0, atol=1e-7)
     assert log.clock.lag_s == pytest.approx(flight.config.gnss.latency_s, abs=1e-9)
     _assert_events(log, flight, flight.exposures["time"].to_numpy() + CAPTURE_DELAY_S, 1e-3)
+    # TRIG and CAM: a feedback pin, so CAM is the exposure
+    assert np.all(log.events.time_sigma == FEEDBACK_TIME_SIGMA)
 
 
 def test_ardupilot_4x_heights_are_ellipsoidal(logs, flight):
@@ -228,6 +231,9 @@ def test_ardupilot_3x_reader_gives_back_the_flight(logs, flight, name):
     assert log.gnss_report.sigma_source == "UBX3.hAcc/vAcc"
     assert log.lever_arm is None
     _assert_events(log, flight, flight.exposures["time"].to_numpy(), 1e-6)
+    # CAM alone: no feedback pin, so ArduPilot logged it at the trigger command, and says so
+    assert np.all(log.events.time_sigma == TRIGGER_TIME_SIGMA)
+    assert any("without a camera feedback pin" in n.message for n in log.notices)
 
 
 @pytest.mark.parametrize("name", ["new.ulg", "old.ulg"])
@@ -241,6 +247,7 @@ def test_px4_reader_gives_back_the_flight(logs, flight, name):
     _assert_fixes(log, flight, height_tolerance=1e-9 if new else 0.0005 + 1e-9, sigma_tolerance=1e-6)
     np.testing.assert_allclose(log.lever_arm.lever_arm, flight.config.lever_arm_gnss_m, rtol=0, atol=1e-7)
     _assert_events(log, flight, flight.exposures["time"].to_numpy() + CAPTURE_DELAY_S, 2e-6 if new else 1e-3)
+    assert np.all(log.events.time_sigma == FEEDBACK_TIME_SIGMA)   # camera_capture: the exposure
 
 
 @pytest.fixture(scope="module")

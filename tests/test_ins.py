@@ -192,11 +192,6 @@ def test_outage_frames_are_flagged_and_inside_their_sigma(outage_flights):
 
 
 @pytest.mark.slow  # the outage fixture: ten simulated flights
-@pytest.mark.xfail(strict=True, reason="known limit: inside 40-s outages the pitch sigma is too small (88 % of "
-                                       "errors inside 2 sigma over these 10 flights): with the datasheet as a prior "
-                                       "of weight 10, a 3-minute flight keeps the gyro-bias drive near the preset's "
-                                       "while the data ask for more; lighter priors fix this and cost accuracy on "
-                                       "KITTI and today's flights (georef/fusion/noise.py, PRIOR_WEIGHT)")
 def test_outage_pitch_inside_its_sigma(outage_flights):
     normalised = []
     for run in outage_flights:
@@ -204,7 +199,8 @@ def test_outage_pitch_inside_its_sigma(outage_flights):
         in_outage = table["flag"].str.contains("GNSS outage").to_numpy()
         errors = frame_errors(table, run.truth_frames)[in_outage]
         normalised.append(errors["pitch"].to_numpy() / table["sigma_pitch"].to_numpy()[in_outage])
-    assert np.mean(np.abs(np.concatenate(normalised)) <= 2.0) >= 0.90
+    share = np.mean(np.abs(np.concatenate(normalised)) <= 2.0)
+    assert share >= 0.90, f"pitch inside 2 sigma in the outages: {share:.3f}"
 
 
 @pytest.mark.parametrize("offset_deg", [-180.0, -135.0, -90.0, -45.0, 0.0, 45.0, 90.0, 135.0, 179.0])

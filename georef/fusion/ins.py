@@ -434,6 +434,11 @@ def initial_alignment(inputs: InsInputs, cfg: InsSettings, start_time: float | N
     except ValueError as exc:
         raise GeorefError(f"{inputs.source}: cannot align the INS: {exc}") from None
     level = _level_alignment(inputs, cfg, result.start_row, ned, bias_g, bias_a) if static else None
+    if still and level is not None:
+        # standing still, gravity gives the level and the heading waits for the motion (the bank): a fit over a
+        # slow first minute can trade its heading against the accelerometer bias and land far off with a small
+        # sigma (a simulated drone: 152 deg off, sigma 1.4 deg, level within the bias's allowance)
+        return level
     if result.observable and result.variance_factor <= VARIANCE_FACTOR_RETRY and \
             (level is None or _level_agrees(result, level)):
         start_sigma = float(np.sqrt(result.covariance[layout.ATT + 2, layout.ATT + 2]))
@@ -819,6 +824,25 @@ def _initial_state(inputs: InsInputs, cfg: InsSettings, alignment: Alignment, no
     return x0, P0
 
 
+def _linearisation_start(x0: np.ndarray, start_state: np.ndarray, level_from_gravity: bool) -> np.ndarray:
+    """The start of a pass after an earlier one: the earlier pass's smoothed state at the start row, a better point
+    to linearise about. With a level read from gravity (a still or hovering start) the level and the accelerometer
+    bias stay the alignment's (``x0``), whose covariance the pass starts with: the two trade against each other
+    wherever the motion does not separate them (a hover, a straight flight at one heading), and taken from the
+    earlier pass under the alignment's covariance they counted the data twice, every noise pass moving the start
+    further along their trade (simulated drones ended 2-5 deg off in roll or pitch with sigmas near 0.5 deg). A
+    start from a motion fit keeps the whole smoothed state: there the fit's level is the weaker one, and the
+    re-linearisation is what carries a phone IMU's 0.07 rad/s of gyro bias (docs/method-ins.md section 9). The
+    lever arm and latency are the caller's."""
+    x = start_state.copy()
+    if level_from_gravity:
+        roll, pitch, _ = dcm_to_euler(quat_to_dcm(x0[layout.X_QUAT:layout.X_QUAT + 4]))
+        _, _, yaw = dcm_to_euler(quat_to_dcm(start_state[layout.X_QUAT:layout.X_QUAT + 4]))
+        x[layout.X_QUAT:layout.X_QUAT + 4] = dcm_to_quat(euler_to_dcm(roll, pitch, yaw))
+        x[layout.X_BA:layout.X_BA + 3] = x0[layout.X_BA:layout.X_BA + 3]
+    return x
+
+
 def _restart_heading(inputs: InsInputs, cfg: InsSettings, alignment: Alignment, x_prev: np.ndarray) -> None:
     """The heading of a re-alignment whose data do not show it at once: another source's (the unit's yaw with
     its IACC origin, the autopilot's, a magnetometer), else the one the filter had, loosely."""
@@ -862,9 +886,7 @@ def _run_pass(inputs: InsInputs, cfg: InsSettings, alignment: Alignment, noise: 
     restarts: list[Restart] = []
     x0, P0 = _initial_state(inputs, cfg, alignment, noise, calibrate, lever, latency)
     if start_state is not None:
-        # an earlier pass's smoothed state at the start row: a better point to linearise about (the covariance
-        # stays the alignment's)
-        x0 = start_state.copy()
+        x0 = _linearisation_start(x0, start_state, alignment.level is not None)
         x0[layout.X_LEVER:layout.X_LEVER + 3] = lever
         x0[layout.X_LATENCY] = latency
     diverged = False

@@ -66,6 +66,9 @@ BANK_SIGMA = np.radians(12.0)
 #: converged to the same heading count with it: headings within BANK_SAME of the winner's at the decision)
 BANK_DECIDED_WEIGHT = 0.99
 BANK_SAME = np.radians(10.0)
+#: ... or when the whole mixture (every heading with its weight, each filter's own sigma included) is within this
+#: sigma [rad] of its mean: the winner then starts with BANK_SIGMA, which covers it
+BANK_MIXTURE_SIGMA = np.radians(10.0)
 #: ... and the fixes have shown a change of horizontal velocity of at least MOTION_DV [m/s] within MOTION_WINDOW_S
 #: [s]: an acceleration the accelerometers cannot fake with their bias. Without it (a hover, a standstill, a
 #: straight leg at constant speed) the heading is not observable, however sure a linearised filter is: in a
@@ -337,9 +340,10 @@ def bank_choice(headings: np.ndarray, epoch_time: np.ndarray, cum_loglik: np.nda
     weights (K,).
 
     The mixture's yaw and sigma at each epoch are the weighted circular mean of the filters' yaws and the spread
-    about it (each filter's own sigma included), for the text. The heading is decided at the first epoch where
-    the filters agreeing with the best one within BANK_SAME hold more than BANK_DECIDED_WEIGHT of the weight, not
-    before ``motion_from`` [s] (:func:`first_motion`), and stays decided to the end. The start heading returned
+    about it (each filter's own sigma included). The heading is decided at the first epoch where the filters
+    agreeing with the best one within BANK_SAME hold more than BANK_DECIDED_WEIGHT of the weight, or the mixture's
+    sigma is at most BANK_MIXTURE_SIGMA, not before ``motion_from`` [s] (:func:`first_motion`), and stays decided
+    to the end. The start heading returned
     is the one of the filter with the most weight at the end."""
     # a filter that stopped (diverged) has no likelihood from there on, nor a yaw: it weighs nothing
     reached = np.isfinite(cum_loglik) & np.isfinite(yaw)
@@ -352,7 +356,7 @@ def bank_choice(headings: np.ndarray, epoch_time: np.ndarray, cum_loglik: np.nda
     best = np.argmax(weights, axis=1)
     agree = reached & (np.abs(wrap_pi(yaw0 - yaw0[np.arange(len(best)), best][:, None])) <= BANK_SAME)
     share = np.sum(weights * agree, axis=1)
-    decided = alive & (share > BANK_DECIDED_WEIGHT) & (epoch_time >= motion_from)
+    decided = alive & ((share > BANK_DECIDED_WEIGHT) | (spread <= BANK_MIXTURE_SIGMA)) & (epoch_time >= motion_from)
     undecided = np.flatnonzero(~decided)
     first = 0 if not len(undecided) else int(undecided[-1]) + 1
     alive_rows = np.flatnonzero(alive)

@@ -46,20 +46,24 @@ def read_events(path: Path | str) -> tuple[Exposures, ImageNames | None]:
             raise InputError(table.path, int(line), table.names.get("frame", "frame"),
                              f"frame {frame!r} is listed twice (first on line {seen[frame]})")
         seen[frame] = int(line)
+    timed = np.isfinite(time)
     names = None
     if "image" in c:
         named = {str(f): str(n).strip() for f, n in zip(frames, c["image"], strict=True) if str(n).strip()}
-        if len(named) < len(frames):
-            missing = next(int(line) for f, line in zip(frames, lines, strict=True) if str(f) not in named)
-            raise InputError(table.path, missing, table.names.get("image", "image"), "an exposure without an "
+        unnamed = [int(line) for f, line, ok in zip(frames, lines, timed, strict=True) if ok and str(f) not in named]
+        if unnamed:
+            raise InputError(table.path, unnamed[0], table.names.get("image", "image"), "an exposure without an "
                              "image name: give every row its image, or leave the column out")
+        # a row cut short before its image keeps its flag and an empty name
+        named.update({str(f): "" for f in frames if str(f) not in named})
         names = ImageNames(table=named, source=str(table.path))
     if "time_sigma" in c:
         time_sigma = np.asarray(c["time_sigma"], dtype=float)
-        negative = np.flatnonzero(~(time_sigma >= 0))
+        negative = np.flatnonzero(timed & ~(time_sigma >= 0))
         if len(negative):
             raise InputError(table.path, int(lines[negative[0]]), table.names.get("time_sigma", "time_sigma"),
                              "a time's sigma must be 0 or positive seconds")
+        time_sigma = np.where(timed, time_sigma, TRIGGER_TIME_SIGMA)
     else:
         time_sigma = np.full(len(time), TRIGGER_TIME_SIGMA)
         notices.append(InputNotice(table.path, [], None, f"no time_sigma column: the times are taken as trigger "

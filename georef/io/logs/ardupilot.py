@@ -210,9 +210,20 @@ def _lever_arm(params: dict[str, float]) -> LeverArmParameter | None:
     return None
 
 
-def _events(log: DataFlashLog, clock: ClockFit, day: float) -> tuple[Exposures | None, list[InputNotice]]:
-    """Exposures from CAM (feedback) and TRIG (trigger): one per image number, the CAM message where both
-    record it; boot times through the clock, else the message's GPS time."""
+def _has_feedback_pin(log: DataFlashLog, params: dict[str, float]) -> bool:
+    """Whether the camera's feedback pin was set: TRIG messages in the log, or the pin parameter (CAM_FEEDBACK_PIN
+    before ArduPilot 4.4, CAM1_FEEDBAK_PIN since) above 0."""
+    trig = log.messages.get("TRIG")
+    if trig is not None and len(trig):
+        return True
+    return any(params.get(name, -1.0) > 0 for name in ("CAM_FEEDBACK_PIN", "CAM1_FEEDBAK_PIN", "CAM2_FEEDBAK_PIN"))
+
+
+def _events(log: DataFlashLog, clock: ClockFit, day: float,
+            params: dict[str, float]) -> tuple[Exposures | None, list[InputNotice]]:
+    """Exposures from CAM and TRIG: one per image number, the CAM message where both record it; boot times
+    through the clock, else the message's GPS time. A CAM is the exposure (sigma FEEDBACK_TIME_SIGMA) only with
+    a feedback pin (:func:`_has_feedback_pin`), else the trigger command (TRIGGER_TIME_SIGMA)."""
     notices: list[InputNotice] = []
     found: dict[int, tuple[float, int, str]] = {}
     for name in ("TRIG", "CAM"):  # CAM last: the feedback replaces the trigger command of the same image
@@ -232,8 +243,16 @@ def _events(log: DataFlashLog, clock: ClockFit, day: float) -> tuple[Exposures |
     time = np.array([found[k][0] for k in frames])
     where = np.array([found[k][1] for k in frames])
     sources = Counter(found[k][2] for k in frames)
-    # CAM is the camera's feedback (the exposure); TRIG alone only the command, some 0.1 s before it
-    time_sigma = np.array([FEEDBACK_TIME_SIGMA if found[k][2] == "CAM" else TRIGGER_TIME_SIGMA for k in frames])
+    # ArduPilot logs TRIG at the trigger command and CAM at the feedback pin's pulse (the exposure) when a
+    # feedback pin is set; without one it logs CAM alone, at the command (AP_Camera_Backend::log_picture)
+    feedback = _has_feedback_pin(log, params)
+    time_sigma = np.array([FEEDBACK_TIME_SIGMA if found[k][2] == "CAM" and feedback else TRIGGER_TIME_SIGMA
+                           for k in frames])
+    if sources["CAM"] and not feedback:
+        notices.append(InputNotice(log.path, [], "CAM", f"{sources['CAM']} CAM messages without a camera feedback "
+                                   "pin (no TRIG messages, no CAM_FEEDBACK_PIN): ArduPilot logs them at the trigger "
+                                   f"command, so each exposure time is taken to {TRIGGER_TIME_SIGMA:g} s "
+                                   "(--camera-time-offset and --camera-time-sigma set the camera's own latency)"))
     both = sum(1 for name in ("CAM", "TRIG") if log.messages.get(name) is not None and len(log.messages[name]))
     if both == 2:
         notices.append(InputNotice(log.path, [], "CAM/TRIG", f"{len(frames)} exposures ({sources['CAM']} from the "
@@ -301,7 +320,7 @@ def read_ardupilot(path: Path, data: bytes, imu_instance: int | None = None) -> 
         m_table, m_rows = m
         mag = Series("MAG", clock.utc(_boot_seconds(m_table, path)[m_rows]) - day,
                      np.stack([_column(m_table, f"Mag{a}", path)[m_rows] for a in "XYZ"], -1))
-    events, event_notices = _events(log, clock, day)
+    events, event_notices = _events(log, clock, day, params)
     notices += event_notices
     notices.append(InputNotice(path, [], time_field, clock.describe()))
     return FlightLog(path=path, kind=f"ArduPilot DataFlash log ({'binary' if binary else 'text'})",

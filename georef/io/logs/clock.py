@@ -3,7 +3,7 @@
 Every message of an autopilot log carries the time since boot of the flight controller's clock. The GNSS
 receiver tells the true time of each fix (GPS week and time of week, or UTC). Fitting ``utc = offset + rate *
 boot`` through the fixes carries every other message (IMU samples, camera events) onto UTC. The rate is fitted
-too: a crystal is off by tens of ppm (a few ms over an hour), and one Linux flight controller of 2014 ran its
+too: a crystal is off by tens of ppm (tens of ms over an hour), and one Linux flight controller of 2014 ran its
 boot clock at 12/13 of real time, which an offset alone would turn into a drift of 8 s per 100 s.
 
 A fix's message is logged when it arrives, some tens of milliseconds after the fix (the receiver's computing
@@ -52,9 +52,13 @@ class ClockFit:
 
     def describe(self) -> str:
         ppm = (self.rate - 1.0) * 1e6
-        return (f"boot clock to UTC over {self.fixes} fixes: rate {ppm:+.0f} ppm, arrival jitter "
+        text = (f"boot clock to UTC over {self.fixes} fixes: rate {ppm:+.0f} ppm, arrival jitter "
                 f"{self.residual_s * 1e3:.0f} ms rms, {self.outliers} fix(es) left out; fix messages taken as "
                 f"{self.lag_s * 1e3:.0f} ms after their fix ({self.lag_source})")
+        if abs(self.rate - 1.0) > RATE_NOTICE:
+            text += (f". The boot clock runs at {self.rate:.6f} times real time, not a crystal's rate: every IMU "
+                     "sample and camera event is rescaled by it")
+        return text
 
 
 def fit_clock(path: object, boot_arrival: np.ndarray, utc: np.ndarray, lag_s: float, lag_source: str,

@@ -167,11 +167,11 @@ def _clock(path: Path, topic, good: np.ndarray, params: dict[str, float]) -> Clo
     sample = _field(topic, "timestamp_sample", path) * US if "timestamp_sample" in topic.data else None
     if sample is not None and np.all(sample[usable] > 0):
         return fit_clock(path, sample[usable], utc[usable], 0.0, "timestamp_sample: the fix's own instant",
-                         "vehicle_gps_position.time_utc_usec")
+                         f"{topic.name}.time_utc_usec")
     delay = params.get("EKF2_GPS_DELAY", 110.0) * 1e-3
     source = "EKF2_GPS_DELAY" if "EKF2_GPS_DELAY" in params else "PX4's default EKF2_GPS_DELAY"
     return fit_clock(path, arrival[usable], utc[usable], delay, f"{source} = {delay * 1e3:.0f} ms",
-                     "vehicle_gps_position.time_utc_usec")
+                     f"{topic.name}.time_utc_usec")
 
 
 def _gnss(path: Path, topic, good: np.ndarray, clock: ClockFit, day: float) -> tuple[GnssEpochs, GnssReport]:
@@ -179,8 +179,12 @@ def _gnss(path: Path, topic, good: np.ndarray, clock: ClockFit, day: float) -> t
     fix = whole_numbers(_field(topic, "fix_type", path))
     counts = Counter(FIX_NAMES.get(int(f), f"fix type {int(f)}") for f in fix)
     utc = _field(topic, "time_utc_usec", path) * US
-    arrival = _field(topic, "timestamp", path) * US
-    fitted = clock.utc(arrival - clock.lag_s)
+    boot = _field(topic, "timestamp", path) * US - clock.lag_s
+    if clock.lag_source.startswith("timestamp_sample"):
+        # the clock was tied to the fixes' own instants: a fix without a UTC time has one too
+        sample = _field(topic, "timestamp_sample", path) * US
+        boot = np.where(sample > 0, sample, boot)
+    fitted = clock.utc(boot)
     time = np.where((utc > 0) & (np.abs(utc - fitted) < 0.5), utc, fitted)
     lat, lon, ell, msl = _lat_lon_heights(topic, path)
     usable = np.flatnonzero(good & np.isfinite(time) & (np.abs(lat) <= 90) & (np.abs(lon) <= 180)
@@ -220,9 +224,14 @@ def _events(ulog, path: Path, clock: ClockFit, day: float) -> tuple[Exposures | 
         present.append(name)
         boot = _field(topic, "timestamp", path) * US
         seq = whole_numbers(_field(topic, "seq", path))
-        # a capture, or a trigger with the camera's feedback, is the exposure; a bare trigger only the command
-        feedback = np.ones(len(seq), bool) if name == "camera_capture" or "feedback" not in topic.data else \
-            _field(topic, "feedback", path) != 0
+        # a capture, or a trigger with the camera's feedback (hotshoe), is the exposure; a bare trigger, or one of
+        # a PX4 whose camera_trigger has no feedback field, only the command
+        if name == "camera_capture":
+            feedback = np.ones(len(seq), bool)
+        elif "feedback" in topic.data:
+            feedback = _field(topic, "feedback", path) != 0
+        else:
+            feedback = np.zeros(len(seq), bool)
         for k, (number, t, fed) in enumerate(zip(seq, clock.utc(boot), feedback, strict=True)):
             found[int(number)] = (float(t) - day, k, name, FEEDBACK_TIME_SIGMA if fed else TRIGGER_TIME_SIGMA)
     if not found:
@@ -326,7 +335,7 @@ def read_px4(path: Path, data: bytes, imu_instance: int | None = None) -> Flight
                      np.stack([_field(sm, a, path) for a in "xyz"], -1))
     events, event_notices = _events(ulog, path, clock, day)
     notices += event_notices
-    notices.append(InputNotice(path, [], "vehicle_gps_position.time_utc_usec", clock.describe()))
+    notices.append(InputNotice(path, [], f"{topic.name}.time_utc_usec", clock.describe()))
     return FlightLog(path=path, kind="PX4 ULog", vehicle=_vehicle(ulog), day_start_utc=day, imu=imu,
                      imu_streams=streams, gnss=gnss, gnss_report=report, clock=clock, attitude=attitude, mag=mag,
                      events=events, lever_arm=_lever_arm(params), params=params, notices=notices,
