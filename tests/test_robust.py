@@ -80,12 +80,14 @@ def test_hover_start_sideways_multicopter(tmp_path, seed):
     assert verdict.passed, verdict
 
 
-@pytest.mark.parametrize("vehicle", ["helicopter", "multicopter", "car"])
-def test_phone_imu_with_an_uncalibrated_gyro(tmp_path, vehicle):
+@pytest.mark.parametrize(("vehicle", "seed"), [("helicopter", 1), ("multicopter", 1), ("car", 1), ("car", 2)])
+def test_phone_imu_with_an_uncalibrated_gyro(tmp_path, vehicle, seed):
     """A consumer (phone) IMU whose gyro has 0.07 rad/s of bias about z, read with the default datasheet (a
-    survey MEMS unit's), without the POS unit's attitude: yaw RMS at most 1 deg over the whole flight."""
-    sim = SimConfig(seed=1, unit=None, **PHONE) if vehicle == "helicopter" else \
-        SimConfig.for_vehicle(vehicle, 180, 1, **PHONE)
+    survey MEMS unit's), without the POS unit's attitude: yaw RMS at most 1 deg over the whole flight. The second
+    car stands still for only a second before it drives: too short to measure the gyro bias, so the start is
+    aligned from the motion (with the level from gravity and the heading left to the bank it was 8.6 deg off)."""
+    sim = SimConfig(seed=seed, unit=None, **PHONE) if vehicle == "helicopter" else \
+        SimConfig.for_vehicle(vehicle, 180, seed, **PHONE)
     flight, result = _process(sim, tmp_path)
     figures = _figures(flight, result)
     assert figures["yaw_rms_deg"] <= 1.0, figures

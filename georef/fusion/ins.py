@@ -411,7 +411,8 @@ def initial_alignment(inputs: InsInputs, cfg: InsSettings, start_time: float | N
     """The filter's starting point: the alignment from the motion (:func:`georef.fusion.alignment.align`) where
     it shows the heading and fits; otherwise, at a start where the vehicle stands still or hovers, the level from
     gravity (:func:`_level_alignment`), and in motion the fit's level; the heading then left to the bank
-    (:func:`decide_heading`).
+    (:func:`decide_heading`). A still start long enough to measure the gyro bias
+    (:func:`georef.fusion.start.level_at_start`) takes gravity's level without trying the fit.
 
     The motion alignment is refused when its window's motion never shows the heading, when it fits the fixes
     badly (variance factor over ``VARIANCE_FACTOR_RETRY``: a window of real consumer-MEMS flight that a constant
@@ -434,10 +435,12 @@ def initial_alignment(inputs: InsInputs, cfg: InsSettings, start_time: float | N
     except ValueError as exc:
         raise GeorefError(f"{inputs.source}: cannot align the INS: {exc}") from None
     level = _level_alignment(inputs, cfg, result.start_row, ned, bias_g, bias_a) if static else None
-    if still and level is not None:
-        # standing still, gravity gives the level and the heading waits for the motion (the bank): a fit over a
-        # slow first minute can trade its heading against the accelerometer bias and land far off with a small
-        # sigma (a simulated drone: 152 deg off, sigma 1.4 deg, level within the bias's allowance)
+    if still and level is not None and level.level.gyro_bias is not None:
+        # standing still long enough to measure the gyro bias, gravity gives the level and the heading waits for
+        # the motion (the bank): a fit over a slow first minute can trade its heading against the accelerometer
+        # bias and land far off with a small sigma (a simulated drone: 152 deg off, sigma 1.4 deg, level within
+        # the bias's allowance). A shorter stop leaves the gyro bias unmeasured, and a bank of filters with a
+        # large one (a phone's 0.07 rad/s) all fail, where the fit estimates it: such a start takes the rules below
         return level
     if result.observable and result.variance_factor <= VARIANCE_FACTOR_RETRY and \
             (level is None or _level_agrees(result, level)):
