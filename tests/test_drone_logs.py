@@ -57,20 +57,25 @@ def _assess(eo_path, truth: pd.DataFrame) -> dict[str, float]:
             "max_tilt": float(np.max(np.abs(errors[["roll", "pitch"]].to_numpy())))}
 
 
-@pytest.mark.parametrize("form", ["bin", "log", "bin.gz", "ulg"])
-def test_an_autopilot_log_gives_a_row_per_exposure(flight, truth, tmp_path, form):
-    """One row per camera event (a CAM and a TRIG of one image are one), the camera's feedback at the exposure;
-    the lever arm from the log's parameters (with a notice); exit 0 on a normal flight; camera positions inside
-    their 2 sigma."""
+def _write(flight, tmp_path, form: str):
+    """The flight as an autopilot log of ``form`` (bin, log, bin.gz, ulg), its camera events at the exposures."""
     path = tmp_path / f"flight.{form}"
     if form == "ulg":
         write_ulog(flight, path, capture_delay_s=_latency(flight))
-    else:
-        raw = path.with_suffix("") if form == "bin.gz" else path
-        write_dataflash(flight, raw, text=form == "log", capture_delay_s=_latency(flight))
-        if form == "bin.gz":
-            path = tmp_path / "flight.bin.gz"
-            path.write_bytes(gzip.compress(raw.read_bytes()))
+        return path
+    raw = path.with_suffix("") if form == "bin.gz" else path
+    write_dataflash(flight, raw, text=form == "log", capture_delay_s=_latency(flight))
+    if form == "bin.gz":
+        path.write_bytes(gzip.compress(raw.read_bytes()))
+    return path
+
+
+@pytest.mark.parametrize("form", ["bin", "ulg"])
+def test_an_autopilot_log_gives_a_row_per_exposure(flight, truth, tmp_path, form):
+    """One row per camera event (a CAM and a TRIG of one image are one), the camera's feedback at the exposure;
+    the lever arm from the log's parameters (with a notice); exit 0 on a normal flight; camera positions inside
+    their 2 sigma. (The text and gzipped DataFlash forms give the binary form's inputs: the next test.)"""
+    path = _write(flight, tmp_path, form)
     eo = tmp_path / "eo.csv"
     code, output = _process([str(path), "-o", str(eo), "--export", f"geojson:{tmp_path / 'eo.geojson'}"])
     print(output)
@@ -81,6 +86,34 @@ def test_an_autopilot_log_gives_a_row_per_exposure(flight, truth, tmp_path, form
     assert figures["horizontal_rms"] < 2.0 and figures["max_tilt"] < 5.0
     assert min(figures["north"], figures["east"]) >= 0.85
     assert (tmp_path / "eo.geojson").exists()
+
+
+@pytest.mark.parametrize("form", ["log", "bin.gz"])
+def test_text_and_gzipped_dataflash_give_the_binary_forms_inputs(flight, tmp_path, form):
+    """The same flight as a text log and as a gzipped binary log reads as the binary log does: the same IMU,
+    fixes, camera events and lever arm (the text form to its printed precision), so ``process`` gives the same
+    EO (the binary form is processed end to end above)."""
+    from georef.io.logs import read_flight_log
+
+    folder = tmp_path / "binary"
+    folder.mkdir()
+    binary = read_flight_log(_write(flight, folder, "bin"))
+    other = read_flight_log(_write(flight, tmp_path, form))
+    exact = form == "bin.gz"
+    close = (lambda a, b, **_: np.testing.assert_array_equal(a, b)) if exact else np.testing.assert_allclose
+    close(other.imu.time, binary.imu.time, rtol=0, atol=1e-6)
+    close(other.imu.gyro, binary.imu.gyro, rtol=1e-5, atol=1e-6)
+    close(other.imu.accel, binary.imu.accel, rtol=1e-5, atol=1e-5)
+    close(other.gnss.time, binary.gnss.time, rtol=0, atol=1e-6)
+    close(other.gnss.lat_deg, binary.gnss.lat_deg, rtol=0, atol=1e-7)
+    close(other.gnss.lon_deg, binary.gnss.lon_deg, rtol=0, atol=1e-7)
+    close(other.gnss.height, binary.gnss.height, rtol=0, atol=1e-3)
+    assert other.events is not None and binary.events is not None
+    np.testing.assert_array_equal(other.events.frame, binary.events.frame)
+    close(other.events.time, binary.events.time, rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(other.events.time_sigma, binary.events.time_sigma)
+    assert other.lever_arm == binary.lever_arm
+    assert (other.vehicle, other.imu.name) == (binary.vehicle, binary.imu.name)
 
 
 def test_generic_files_with_trigger_times(flight, truth, tmp_path):
