@@ -29,7 +29,7 @@ from georef.io.atomic import atomic_write
 from georef.io.errors import InputError
 from georef.io.plausibility import GENERIC_LIMITS, check_gnss_jumps, check_ranges
 from georef.io.pos import PosLog
-from georef.io.table import read_table
+from georef.io.table import Table, read_table
 
 IMU_COLUMNS = ("time", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
 GNSS_COLUMNS = ("time", "lat", "lon", "height")
@@ -63,16 +63,23 @@ def read_imu_heading_sources(path: Path | str) -> tuple[np.ndarray | None, np.nd
     return mag, yaw
 
 
-def read_marg_csv(path: Path | str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
-    """``imu.csv`` with optional ``mag_x, mag_y, mag_z`` -> time, gyro, specific force, field or None, lines."""
-    wanted = dict.fromkeys((*IMU_COLUMNS, *MAG_COLUMNS), "float")
-    table = read_table(path, wanted, required=set(IMU_COLUMNS))
+def _imu_table(path: Path | str, columns: tuple[str, ...]) -> Table:
+    """imu.csv's ``columns`` (the IMU's required), its time strictly increasing and every value in range; an
+    error names the file, line and column."""
+    table = read_table(path, dict.fromkeys(columns, "float"), required=set(IMU_COLUMNS))
     c = table.columns
     check_increasing(table.path, c["time"], table.lines, table.names.get("time", "time"))
     check_ranges(table.path, c, table.lines, table.names, GENERIC_LIMITS)
     same = np.flatnonzero(np.diff(c["time"]) == 0)
     if len(same):
         raise InputError(table.path, int(table.lines[same[0] + 1]), "time", "repeated time stamp")
+    return table
+
+
+def read_marg_csv(path: Path | str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
+    """``imu.csv`` with optional ``mag_x, mag_y, mag_z`` -> time, gyro, specific force, field or None, lines."""
+    table = _imu_table(path, (*IMU_COLUMNS, *MAG_COLUMNS))
+    c = table.columns
     gyro = np.stack([c["gyro_x"], c["gyro_y"], c["gyro_z"]], -1)
     accel = np.stack([c["acc_x"], c["acc_y"], c["acc_z"]], -1)
     present = [name for name in MAG_COLUMNS if name in c]
@@ -89,14 +96,8 @@ def read_generic_log(imu_path: Path | str, gnss_path: Path | str) -> PosLog:
     imu.csv has them. imu.csv is read once."""
     from georef.align import TimeRepairReport
 
-    wanted = dict.fromkeys((*IMU_COLUMNS, *MAG_COLUMNS, "roll", "pitch", AUTOPILOT_YAW), "float")
-    table = read_table(imu_path, wanted, required=set(IMU_COLUMNS))
+    table = _imu_table(imu_path, (*IMU_COLUMNS, *MAG_COLUMNS, "roll", "pitch", AUTOPILOT_YAW))
     c = table.columns
-    check_increasing(table.path, c["time"], table.lines, table.names.get("time", "time"))
-    check_ranges(table.path, c, table.lines, table.names, GENERIC_LIMITS)
-    same = np.flatnonzero(np.diff(c["time"]) == 0)
-    if len(same):
-        raise InputError(table.path, int(table.lines[same[0] + 1]), "time", "repeated time stamp")
     present = [name for name in MAG_COLUMNS if name in c]
     if present and len(present) < 3:
         missing = [name for name in MAG_COLUMNS if name not in c][0]
