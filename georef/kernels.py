@@ -104,8 +104,9 @@ KERNELS: dict[str, KernelSpec] = {
                   F2),
             returns=(I1, F1, F3, F3, F3, F2, I1, F2, F3, F3, F1, I1, I1, I1, F2, F3, I1, F2, I1, F2)),
          "rts_backward": KernelFunction(
-            args=(F1, F3, F3, F3, F2, B1, B1, F1, I1, F2, F3, F2, I1, I1, I1, F2, F3, I1, F2, BOOL),
+            args=(F1, F3, F3, F3, F2, B1, B1, F1, I1, F2, F3, F2, I1, I1, I1, F2, F3, I1, F2, BOOL, F2),
             returns=(F2, F2, F2)),
+         "prior_shift": KernelFunction(args=(F3, F3, F3, B1, F1), returns=(F2, F2)),
          "corrected": KernelFunction(args=(F1, F1), returns=(F1,)),
          "two_sample_corrections": KernelFunction(args=(F2, F2), returns=(F2, F2)),
          "finish_rows": KernelFunction(

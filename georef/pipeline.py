@@ -31,7 +31,7 @@ from georef.eo import (
 from georef.exposure import interpolate_to_exposures
 from georef.frames.rotations import wrap_pi
 from georef.fusion import axis, ins
-from georef.fusion.ins_layout import UNIT_YAW
+from georef.fusion.ins_layout import UNIT_DRIFT, UNIT_YAW
 from georef.fusion.solution import NavSolution
 from georef.io.camera import Exposures
 from georef.io.camera import read_exposures as read_camera_exposures
@@ -148,6 +148,20 @@ def _held_out_figures(held: object) -> dict[str, object]:
             "held_out_diverged": bool(held.diverged)}
 
 
+def _sigma_scale_figures(nav: NavSolution) -> dict[str, object]:
+    """How far this flight bears out its own sigmas (1: as claimed; above 1: too small): ``sigma_scale_position``
+    the held-out fixes' rms(error / sigma) (horizontal), ``sigma_scale_attitude`` [roll, pitch, yaw] the forward
+    filter's separation from the smoothed attitude over that separation's sigma, RMS over the flight
+    (:meth:`georef.fusion.solution.ForwardSeparation.sigma_scale`); None where there is nothing to measure."""
+    held = getattr(nav.diagnostics, "held_out", None)
+    position = float(held.z_rms) if held is not None and np.isfinite(held.z_rms) else None
+    attitude = None
+    if nav.forward is not None:
+        _, scale = nav.forward.sigma_scale()
+        attitude = [float(v) if np.isfinite(v) else None for v in scale]
+    return {"sigma_scale_position": position, "sigma_scale_attitude": attitude}
+
+
 def _flight_figures(flight: FlightLog | None) -> dict[str, object]:
     """An autopilot log's facts for the summary: its kind and vehicle, the IMU stream used, the boot clock's rate
     against UTC [ppm] and the fix messages' arrival jitter [s], and the fix types counted (None without a log)."""
@@ -198,8 +212,11 @@ def solution_figures(nav: NavSolution, gnss: GnssSection, fix_sigma: np.ndarray 
 
     * ``heading_source``: where the initial heading came from;
     * ``unit_yaw_origin_deg``, ``unit_yaw_origin_sigma_deg``: the POS unit's yaw origin ``d`` (true yaw = unit
-      yaw + d) at the filter's first row and its 1-sigma [deg], and ``unit_yaw_drift_deg_per_min`` its drift (a
-      straight line fitted to the smoothed origin) [deg/min]: only when the unit's attitude aided the filter;
+      yaw + d) at the filter's first row and its 1-sigma [deg], ``unit_yaw_drift_deg_per_min`` its drift over the
+      flight (a straight line fitted to the smoothed origin) [deg/min] and ``unit_yaw_drift_sigma_deg_per_min`` the
+      1-sigma of the smoothed drift state, RMS over the flight (the drift trades with the z-gyro bias wherever the
+      motion does not show the heading; the frames' yaw sigmas carry that trade): only when the unit's attitude
+      aided the filter;
     * ``gnss_sigma_fitted_m``: the GNSS sigmas north, east, up the fitted noise model uses [m]: sqrt(r_scale)
       times the median of the fixes' own sigmas ``fix_sigma`` (K, 3) [m] where the receiver gave them, else the
       configured ``gnss.sigma`` (the white part, when a correlated part was fitted too), ``vrw_m_s_sqrt_h`` the
@@ -223,12 +240,14 @@ def solution_figures(nav: NavSolution, gnss: GnssSection, fix_sigma: np.ndarray 
     figures: dict[str, object] = {
         "heading_source": str(diagnostics.heading_source),
         "unit_yaw_origin_deg": None, "unit_yaw_origin_sigma_deg": None, "unit_yaw_drift_deg_per_min": None,
+        "unit_yaw_drift_sigma_deg_per_min": None,
         "gnss_sigma_fitted_m": tuple(float(v) for v in sigma * scale),
         "vrw_m_s_sqrt_h": float(noise.vrw_h), "arw_deg_sqrt_h": float(noise.arw_h),
         "ground_vehicle": bool(diagnostics.ground_vehicle),
         "gnss_error_model": "white + Gauss-Markov" if getattr(diagnostics, "gnss_correlated", False) else "white",
         "still_spans_s": [tuple(float(v) for v in span) for span in (getattr(diagnostics, "still_spans", None) or [])],
         **_held_out_figures(getattr(diagnostics, "held_out", None)),
+        **_sigma_scale_figures(nav),
     }
     ins_info = nav.ins_info
     if diagnostics.unit_aiding and ins_info is not None and len(ins_info.epoch_sigma):
@@ -242,6 +261,8 @@ def solution_figures(nav: NavSolution, gnss: GnssSection, fix_sigma: np.ndarray 
             if len(rows) > 1 and nav.time[rows[-1]] > nav.time[rows[0]]:
                 slope = np.polyfit(nav.time[rows] - nav.time[rows[0]], d, 1)[0]
                 figures["unit_yaw_drift_deg_per_min"] = float(np.degrees(slope) * 60.0)
+                drift_sigma = np.sqrt(np.mean(epoch_sigma[:, UNIT_DRIFT] ** 2))
+                figures["unit_yaw_drift_sigma_deg_per_min"] = float(np.degrees(drift_sigma) * 60.0)
     graph = nav.graph_info
     if graph is not None:  # --method graph: the lever arm estimated with the trajectory
         figures["graph_lever_arm_m"] = tuple(float(v) for v in graph.lever_arm_m)

@@ -560,14 +560,24 @@ def _summary(result: ProcessResult, accuracy: dict[str, float] | None, gaps: lis
     if s.get("heading_source") is not None:
         rows.append(("heading source", s["heading_source"]))
     if s.get("unit_yaw_origin_deg") is not None:
-        drift = s.get("unit_yaw_drift_deg_per_min")
+        drift, drift_sigma = s.get("unit_yaw_drift_deg_per_min"), s.get("unit_yaw_drift_sigma_deg_per_min")
         rows.append(("POS unit yaw origin", f"{_number(s['unit_yaw_origin_deg'])} ± "
                      f"{_number(s['unit_yaw_origin_sigma_deg'])} deg at the start (true yaw = unit yaw + origin)"
-                     + (f", drift {_number(drift)} deg/min" if drift is not None else "")))
+                     + (f", drift {_number(drift)}" if drift is not None else "")
+                     + (f" ± {_number(drift_sigma)}" if drift is not None and drift_sigma is not None else "")
+                     + (" deg/min" if drift is not None else "")))
     if s.get("yaw_offset_deg") is not None:
         rows.append(("POS unit yaw offset", f"{_number(s['yaw_offset_deg'])} ± {_number(s['yaw_offset_sigma_deg'])}"
                      f" deg, drift {_number(s['yaw_drift_deg_per_min'])} ± "
                      f"{_number(s['yaw_drift_sigma_deg_per_min'])} deg/min"))
+    scale_p, scale_a = s.get("sigma_scale_position"), s.get("sigma_scale_attitude")
+    if scale_p is not None or scale_a is not None:
+        parts = [] if scale_p is None else [f"position {_number(scale_p)} (held-out fixes)"]
+        if scale_a is not None:
+            parts.append("roll/pitch/yaw " + "/".join("–" if v is None else _number(v) for v in scale_a)
+                         + " (forward filter against the smoother)")
+        rows.append(("σ scale on this flight", "; ".join(parts) + ": errors over their σ, RMS; 1 is as claimed, "
+                     "above 1 the σ are too small"))
     if s.get("gnss_sigma_fitted_m") is not None:
         rows.append(("fitted noise", f"GNSS σ {_triple(s['gnss_sigma_fitted_m'], ('N', 'E', 'U'), 'm', 2)}; "
                      f"velocity random walk {_number(s['vrw_m_s_sqrt_h'])} m/s/√h, angle random walk "
@@ -608,6 +618,7 @@ def _summary(result: ProcessResult, accuracy: dict[str, float] | None, gaps: lis
              "gnss_rejected_lines", "gnss_gaps", "yaw_offset_deg", "yaw_offset_sigma_deg", "yaw_drift_deg_per_min",
              "yaw_drift_sigma_deg_per_min", "time_quirks_repaired", "method", "heading_source",
              "unit_yaw_origin_deg", "unit_yaw_origin_sigma_deg", "unit_yaw_drift_deg_per_min",
+             "unit_yaw_drift_sigma_deg_per_min", "sigma_scale_position", "sigma_scale_attitude",
              "gnss_sigma_fitted_m", "vrw_m_s_sqrt_h", "arw_deg_sqrt_h", "ground_vehicle"}
     for key, value in s.items():  # figures added to the summary later are shown, readably
         if key not in known and value is not None:

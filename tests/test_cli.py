@@ -31,10 +31,12 @@ def test_process_bundled_flight(tmp_path):
     # rts: the unit's yaw origin (true yaw = unit yaw + origin), not the axis method's yaw offset
     assert "yaw offset" not in result.output
     text = re.sub(r"[│\s]+", " ", result.output)   # the table's cells unwrapped
-    origin = re.search(r"unit yaw origin (-?[\d.]+) ± ([\d.]+) deg at the start.*?drift (-?[\d.]+) deg/min", text)
+    origin = re.search(r"unit yaw origin (-?[\d.]+) ± ([\d.]+) deg at the start.*?drift (-?[\d.]+) ± ([\d.]+) deg/min",
+                       text)
     assert origin, result.output
-    # the simulated unit's origin drifts 0.5 deg/min
-    assert 0.0 < float(origin.group(2)) < 1.0 and abs(float(origin.group(3)) - 0.5) < 0.2
+    # the simulated unit's origin drifts 0.5 deg/min, shown with its sigma
+    drift, drift_sigma = float(origin.group(3)), float(origin.group(4))
+    assert 0.0 < float(origin.group(2)) < 1.0 and abs(drift - 0.5) < 0.2 and abs(drift - 0.5) <= 3.0 * drift_sigma
     noise = re.search(r"GNSS σ h ([\d.]+) m, v ([\d.]+) m \(fitted\); VRW ([\d.]+) m/s/√h, ARW ([\d.]+) deg/√h", text)
     assert noise, result.output
     assert 0.5 < float(noise.group(1)) < 2.0 and 1.0 < float(noise.group(2)) < 4.0
@@ -99,6 +101,59 @@ def test_simulate_then_process_and_evaluate(tmp_path):
     assert result.exit_code == 0, result.output
     result = RUNNER.invoke(app, ["evaluate", str(folder / "eo.csv"), str(folder / "truth.csv")])
     assert result.exit_code == 0 and "yaw_rms_deg" in result.output
+
+
+def _unique_fixes(folder: Path) -> pd.DataFrame:
+    """The GNSS fixes POS.txt holds (rows before the first fix hold zeros; each fix is held for many rows)."""
+    pos = pd.read_csv(folder / "POS.txt", sep="\t", usecols=["LATITUDE", "LONGITUDE", "ALTITUDE"])
+    return pos[pos["LATITUDE"] != 0.0].drop_duplicates().reset_index(drop=True)
+
+
+def test_simulate_gnss_sigma_and_unit_yaw_drift_reach_the_files(tmp_path):
+    """--gnss-sigma 3,3,5 scales the fixes' noise (same seed: the same standard normal draws, so the fixes move
+    from the default 1,1,2 run by z x (2, 2, 3) m) and reaches flight.toml; --unit-yaw-drift 4 makes truth.csv's
+    unit_yaw_offset ramp at 4 deg/h instead of the default 30 deg/h."""
+    import tomllib
+
+    common = ["simulate", "--seed", "1", "--duration", "60", "--quiet"]
+    plain, changed = tmp_path / "plain", tmp_path / "changed"
+    assert RUNNER.invoke(app, [common[0], str(plain), *common[1:]]).exit_code == 0
+    result = RUNNER.invoke(app, [common[0], str(changed), *common[1:], "--gnss-sigma", "3,3,5",
+                                 "--unit-yaw-drift", "4"])
+    assert result.exit_code == 0, result.output
+    a, b = _unique_fixes(plain), _unique_fixes(changed)
+    assert len(a) == len(b) > 50
+    lat = np.radians(a["LATITUDE"].to_numpy())
+    d_north = np.radians(b["LATITUDE"] - a["LATITUDE"]).to_numpy() * 6.371e6
+    d_east = np.radians(b["LONGITUDE"] - a["LONGITUDE"]).to_numpy() * 6.371e6 * np.cos(lat)
+    d_up = (b["ALTITUDE"] - a["ALTITUDE"]).to_numpy()
+    for diff, extra in ((d_north, 2.0), (d_east, 2.0), (d_up, 3.0)):
+        assert 0.7 * extra < np.sqrt(np.mean(diff**2)) < 1.3 * extra
+    gnss = tomllib.loads((changed / "flight.toml").read_text())["gnss"]
+    assert gnss["gnss_sigma"] == [3, 3, 5]
+    for folder, deg_per_h in ((plain, 30.0), (changed, 4.0)):
+        truth = pd.read_csv(folder / "truth.csv")
+        ramp = truth["unit_yaw_offset"].iloc[-1] - truth["unit_yaw_offset"].iloc[0]
+        span_h = (truth["time"].iloc[-1] - truth["time"].iloc[0]) / 3600.0
+        assert ramp == pytest.approx(deg_per_h * span_h, rel=1e-4)
+    # the POS unit's own yaw carries the new origin: it differs from the plain run by the ramps' difference
+    yaw = [pd.read_csv(f / "POS.txt", sep="\t", usecols=["YAW"])["YAW"].to_numpy() for f in (plain, changed)]
+    moved = (yaw[0] - yaw[1] + 180.0) % 360.0 - 180.0
+    assert moved[-1] - moved[0] == pytest.approx(-(30.0 - 4.0) * 60.0 / 3600.0, abs=0.01)
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--gnss-sigma", "3,0,5"], "--gnss-sigma must be three positive metres"),
+    (["--gnss-sigma", "3,3"], "--gnss-sigma needs three comma-separated numbers in metres"),
+    (["--unit-yaw-drift", "nan"], "--unit-yaw-drift must be a finite number of deg/h"),
+    (["--unit-yaw-drift", "4", "--vehicle", "car"], "--unit-yaw-drift applies to --vehicle helicopter only"),
+    (["--gnss-sigma", "3,3,5", "--vehicle", "drone"], "--gnss-sigma applies to --vehicle helicopter"),
+])
+def test_simulate_refuses_bad_gnss_sigma_and_unit_yaw_drift(tmp_path, args, message):
+    result = RUNNER.invoke(app, ["simulate", str(tmp_path / "x"), *args, "--quiet"])
+    assert result.exit_code == 2
+    assert message in re.sub(r"\s+", " ", result.output)
+    assert not (tmp_path / "x").exists()
 
 
 def test_options_override_the_config(tmp_path):
@@ -468,6 +523,9 @@ def test_summary_json_of_process(bundled_run):
     assert figures["frames_flagged"] == int((table["flag"] != "").sum())
     assert figures["gnss_rejected_lines"] == [3016] and figures["method"] == "rts"
     assert len(figures["time_span_s"]) == 2 and figures["unit_yaw_drift_deg_per_min"] == pytest.approx(0.5, abs=0.2)
+    # the bundled flight's unit drifts 0.5 deg/min: the drift's own sigma covers its error and says something
+    drift_sigma = figures["unit_yaw_drift_sigma_deg_per_min"]
+    assert 0.0 < drift_sigma < 0.2 and abs(figures["unit_yaw_drift_deg_per_min"] - 0.5) <= 3.0 * drift_sigma
     qc = summary["qc"]
     assert qc["passed"] is True and qc["verdict"].startswith("passed")
     assert {"innovations", "lever arm", "frames"} <= {c["name"] for c in qc["checks"]}

@@ -208,6 +208,47 @@ def test_alignment_heading_against_truth(tmp_path, seed):
     assert abs(roll - truth.roll[row]) < np.radians(0.5) and abs(pitch - truth.pitch[row]) < np.radians(0.5)
 
 
+def test_fit_covariance_lands_on_the_filters_named_states():
+    """Every block of the alignment fit's covariance (rotation, position, velocity, gyro bias, accelerometer
+    bias) lands on the filter state of that name, the correlations with it, and every block but the rotation
+    changes sign (the fit's corrections are truth minus estimate, the filter's errors estimate minus truth)."""
+    fit_blocks = {alignment_module.FIT_ROT: layout.ATT, alignment_module.FIT_POS: layout.POS,
+                  alignment_module.FIT_VEL: layout.VEL, alignment_module.FIT_BG: layout.BG,
+                  alignment_module.FIT_BA: layout.BA}
+    rng = np.random.default_rng(4)
+    B = rng.standard_normal((alignment_module.FIT_N, alignment_module.FIT_N))
+    fit = B @ B.T + np.diag(np.arange(1.0, alignment_module.FIT_N + 1.0))
+    ordered = alignment_module.filter_order(fit)
+    for fit_a, state_a in fit_blocks.items():
+        for fit_b, state_b in fit_blocks.items():
+            sign = (1.0 if fit_a == alignment_module.FIT_ROT else -1.0) * \
+                (1.0 if fit_b == alignment_module.FIT_ROT else -1.0)
+            np.testing.assert_array_equal(ordered[state_a:state_a + 3, state_b:state_b + 3],
+                                          sign * fit[fit_a:fit_a + 3, fit_b:fit_b + 3])
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_alignment_covariance_reads_right_in_filter_order(tmp_path, seed):
+    """Read by the filter's named states, the alignment's covariance says what a 60-s fit of a MEMS unit to
+    1-m fixes can know: roll and pitch to under 1 deg (the position's block read as attitude gave 12 deg on the
+    bundled flight), north/east velocity to under 0.5 m/s (the attitude's read as velocity gave 1.4 m/s), the
+    position to the fixes' metre; and the start's roll, pitch and heading lie within 4 sigma of the truth."""
+    flight, inputs, cfg = _alignment_of(SimConfig(seed=seed), tmp_path)
+    result = initial_alignment(inputs, cfg)
+    sigma = np.sqrt(np.diag(result.covariance))
+    assert np.all(sigma[layout.ATT:layout.ATT + 2] < np.radians(1.0)), np.degrees(sigma[layout.ATT:layout.ATT + 3])
+    assert np.all(sigma[layout.VEL:layout.VEL + 2] < 0.5), sigma[layout.VEL:layout.VEL + 3]
+    assert np.all((sigma[layout.POS:layout.POS + 3] > 0.05) & (sigma[layout.POS:layout.POS + 3] < 3.0))
+    truth = flight.truth_nav
+    row = int(np.argmin(np.abs(truth.time - inputs.time[result.start_row])))
+    angles = np.array(dcm_to_euler(result.C_b_n))
+    true_angles = np.array([truth.roll[row], truth.pitch[row], truth.yaw[row]])
+    error = np.abs(wrap_pi(angles - true_angles))
+    # near level the NED attitude errors about north and east are the roll and pitch errors
+    attitude_sigma = sigma[layout.ATT:layout.ATT + 3]
+    assert np.all(error <= 4.0 * attitude_sigma), (np.degrees(error), np.degrees(attitude_sigma))
+
+
 def test_datasheet_bias_prior_is_rejected_by_a_phone_gyro(tmp_path):
     """A phone gyro with 0.07 rad/s of z bias read with the default (survey MEMS) datasheet: the F-test
     rejects the datasheet prior, the fit finds the bias and the heading."""

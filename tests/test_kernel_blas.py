@@ -31,7 +31,8 @@ out = kernel.rts_backward(np.full(n_ep, 0.5), Pm, Pp, Phi, 0.01 * rng.standard_n
                           np.zeros(n_ep, dtype=bool), np.ones(layout.N_NOISE), np.zeros(0, dtype=np.int64),
                           np.zeros((0, 3)), np.zeros((0, 3, nx)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64),
                           np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, 3)),
-                          np.zeros((0, 3, nx)), np.zeros(0, dtype=np.int64), np.zeros((0, 3)), True)
+                          np.zeros((0, 3, nx)), np.zeros(0, dtype=np.int64), np.zeros((0, 3)), True,
+                          np.zeros((n_ep, nx)))
 digest = hashlib.sha256(b"".join(np.ascontiguousarray(a).tobytes() for a in out)).hexdigest()
 print(digest, "scipy.linalg" in sys.modules, kernels.LOADED["ins"])
 import scipy.linalg

@@ -421,10 +421,11 @@ def _filter_rows(s: dict[str, Any]) -> list[tuple[str, str]]:
         return rows
     rows.append(("heading source", escape(str(s["heading_source"]))))
     if s.get("unit_yaw_origin_deg") is not None:
-        drift = s.get("unit_yaw_drift_deg_per_min")
+        drift, drift_sigma = s.get("unit_yaw_drift_deg_per_min"), s.get("unit_yaw_drift_sigma_deg_per_min")
+        drift_text = "" if drift is None else f", drift {drift:.3f}" + (
+            f" ± {drift_sigma:.3f}" if drift_sigma is not None else "") + " deg/min"
         rows.append(("unit yaw origin", f"{s['unit_yaw_origin_deg']:.3f} ± {s['unit_yaw_origin_sigma_deg']:.3f} deg "
-                     "at the start (true yaw = unit yaw + origin)"
-                     + (f", drift {drift:.3f} deg/min" if drift is not None else "")))
+                     "at the start (true yaw = unit yaw + origin)" + drift_text))
     sigma_n, sigma_e, sigma_u = s["gnss_sigma_fitted_m"]
     horizontal = f"{sigma_n:.2f}" if abs(sigma_n - sigma_e) < 0.005 else f"{sigma_n:.2f}/{sigma_e:.2f}"
     rows.append(("noise", f"GNSS σ h {horizontal} m, v {sigma_u:.2f} m (fitted); VRW {s['vrw_m_s_sqrt_h']:.3f} "
@@ -551,6 +552,13 @@ def simulate(
     gnss_rate: Annotated[float | None, typer.Option(
         help="GNSS fix rate in Hz (1, 5, 10...; default 1, drone 5). POS.txt tags fixes to whole seconds, so above "
              "1 Hz use --generic and georef fuse.")] = None,
+    gnss_sigma: Annotated[str | None, typer.Option(
+        help="GNSS fix noise N,E,U in metres (1-sigma white noise of each fix, north, east, up; default 1,1,2). "
+             "Helicopter, multicopter, car (the drone's receiver errors are drawn by --seed). Also written to "
+             "flight.toml's gnss_sigma, as the simulated installation's.")] = None,
+    unit_yaw_drift: Annotated[float | None, typer.Option(
+        help="Helicopter: drift of the POS unit's yaw origin in degrees per hour (default 30 = 0.5 deg/min); "
+             "truth.csv's unit_yaw_offset ramps by it.")] = None,
     gnss_drop: Annotated[float | None, typer.Option(
         help="Drone: fraction of GNSS fixes missing, single or in runs of 2-5 (e.g. 0.03 with --gnss-rate 1).")
     ] = None,
@@ -587,7 +595,7 @@ def simulate(
     from georef.sim.files import write_flight, write_generic
     from georef.sim.flight import VEHICLES, SimConfig
     from georef.sim.flight import simulate as run
-    from georef.sim.sensors import AutopilotModel, GnssModel, MagnetometerModel, VibrationModel
+    from georef.sim.sensors import AutopilotModel, GnssModel, MagnetometerModel, UnitModel, VibrationModel
 
     def pairs(values: list[str] | None, what: str) -> list[tuple[float, float]]:
         result = []
@@ -609,6 +617,17 @@ def simulate(
     for name, value in {"start": start, "gnss-drop": gnss_drop}.items():
         if value is not None and vehicle != "drone":
             raise typer.BadParameter(f"--{name} applies to --vehicle drone only")
+    if gnss_sigma is not None and vehicle == "drone":
+        raise typer.BadParameter("--gnss-sigma applies to --vehicle helicopter, multicopter or car (the drone's "
+                                 "receiver errors are drawn by --seed)")
+    if unit_yaw_drift is not None and vehicle != "helicopter":
+        raise typer.BadParameter("--unit-yaw-drift applies to --vehicle helicopter only (the others have no POS "
+                                 "unit)")
+    sigma_neu = _triple(gnss_sigma, "--gnss-sigma", "metres")
+    if sigma_neu is not None and not all(np.isfinite(v) and v > 0 for v in sigma_neu):
+        raise typer.BadParameter(f"--gnss-sigma must be three positive metres N,E,U, got {gnss_sigma!r}")
+    if unit_yaw_drift is not None and not np.isfinite(unit_yaw_drift):
+        raise typer.BadParameter(f"--unit-yaw-drift must be a finite number of deg/h, got {unit_yaw_drift!r}")
     if vehicle == "drone":
         cfg = _drone_config(duration, seed, start, rate, camera_rate, imu, gyro_bias, accel_bias, vibration,
                             vibration_level, gnss_rate, pairs(outage, "--outage"), pairs(outlier, "--outlier"),
@@ -619,8 +638,11 @@ def simulate(
     gnss_rate = 1.0 if gnss_rate is None else gnss_rate
     changes: dict[str, Any] = {
         "pos_rate_hz": rate, "camera_rate_hz": 3.0 if camera_rate is None else camera_rate,
-        "gnss": GnssModel(rate_hz=gnss_rate, outages=pairs(outage, "--outage"), outliers=pairs(outlier, "--outlier")),
+        "gnss": GnssModel(rate_hz=gnss_rate, outages=pairs(outage, "--outage"), outliers=pairs(outlier, "--outlier"),
+                          **({} if sigma_neu is None else {"sigma_neu_m": sigma_neu})),
     }
+    if unit_yaw_drift is not None:
+        changes["unit"] = UnitModel(yaw_drift_deg_min=unit_yaw_drift / 60.0)
     if imu is not None:
         changes["imu_preset"] = imu
     if vibration is not None or vibration_level != 1.0:

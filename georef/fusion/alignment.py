@@ -185,15 +185,17 @@ class _Window:
         y = (self.fixes.r - self.known).reshape(-1)
         w = 1.0 / self.fixes.sigma.reshape(-1)
         eye = np.eye(3)
-        A = np.zeros((K, 3, 15))
-        A[:, :, 0:3] = eye
-        A[:, :, 3:6] = self.tau[:, None, None] * eye
+        # the linear fit's parameters: r0 [m], v0 [m/s] and vec(M), M the 3x3 matrix in place of C0
+        r0, v0, vec_m = slice(0, 3), slice(3, 6), slice(6, 15)
+        A = np.zeros((K, 3, vec_m.stop))
+        A[:, :, r0] = eye
+        A[:, :, v0] = self.tau[:, None, None] * eye
         # vec(M) column-major: M x = (xᵀ ⊗ I) vec(M); -[ω x] M γ = -(γᵀ ⊗ [ω x]) vec(M)
         x = beta + lam
-        A[:, :, 6:15] = (np.einsum("kj,ab->kajb", x, eye) - np.einsum("kj,ab->kajb", gamma, self.W)).reshape(K, 3, 9)
-        A = A.reshape(3 * K, 15)
+        A[:, :, vec_m] = (np.einsum("kj,ab->kajb", x, eye) - np.einsum("kj,ab->kajb", gamma, self.W)).reshape(K, 3, 9)
+        A = A.reshape(3 * K, vec_m.stop)
         sol, *_ = np.linalg.lstsq(A * w[:, None], y * w, rcond=1e-10)
-        M = sol[6:15].reshape(3, 3, order="F")
+        M = sol[vec_m].reshape(3, 3, order="F")
         rss = float(np.sum(((A @ sol - y) * w) ** 2))
         return _nearest_rotation(M), rss
 
@@ -208,13 +210,13 @@ class _Window:
         Cg = gamma @ C0.T
         model = r0 + v0 * tau + self.known + Cb + Cl - Cg @ self.W.T - tau * (Cl @ self.W.T)
         res = self.fixes.r - model
-        Jac = np.zeros((K, 3, 15))
-        Jac[:, :, 0:3] = -skew(Cb + Cl) + self.W @ skew(Cg) + tau[:, :, None] * (self.W @ skew(Cl))
-        Jac[:, :, 3:6] = np.eye(3)
-        Jac[:, :, 6:9] = tau[:, :, None] * np.eye(3)
-        Jac[:, :, 9:12] = C0 @ (db_g + dl_g)
-        Jac[:, :, 12:15] = C0 @ db_a
-        return res.reshape(-1), Jac.reshape(3 * K, 15)
+        Jac = np.zeros((K, 3, FIT_N))
+        Jac[:, :, _ROT] = -skew(Cb + Cl) + self.W @ skew(Cg) + tau[:, :, None] * (self.W @ skew(Cl))
+        Jac[:, :, _POS] = np.eye(3)
+        Jac[:, :, _VEL] = tau[:, :, None] * np.eye(3)
+        Jac[:, :, _BG] = C0 @ (db_g + dl_g)
+        Jac[:, :, _BA] = C0 @ db_a
+        return res.reshape(-1), Jac.reshape(3 * K, FIT_N)
 
 
 def _static_start(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, row0: int, fixes: _Fixes,
@@ -234,6 +236,15 @@ def _static_start(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, row0: int,
     return gyro[rows].mean(axis=0) - omega_vertical * down_b, float(length)
 
 
+#: the alignment fit's parameter order: rotation correction ρ [rad], start position r0 and velocity v0 [NED m, m/s],
+#: gyro and accelerometer biases [rad/s, m/s^2]; true = estimate + correction (:func:`filter_order` maps it to the
+#: filter's error states)
+FIT_ROT, FIT_POS, FIT_VEL, FIT_BG, FIT_BA = 0, 3, 6, 9, 12
+FIT_N = 15
+_ROT, _POS, _VEL = slice(FIT_ROT, FIT_ROT + 3), slice(FIT_POS, FIT_POS + 3), slice(FIT_VEL, FIT_VEL + 3)
+_BG, _BA = slice(FIT_BG, FIT_BG + 3), slice(FIT_BA, FIT_BA + 3)
+
+
 def _gauss_newton(win: _Window, C0: np.ndarray, r0: np.ndarray, v0: np.ndarray, bias_g: np.ndarray,
                   bias_a: np.ndarray, iterations: int = 12, prior_sigma: tuple[float, float] | None = None):
     """Robust Levenberg-Marquardt from a starting point (Huber weights, a zero-mean prior on the biases with
@@ -242,7 +253,8 @@ def _gauss_newton(win: _Window, C0: np.ndarray, r0: np.ndarray, v0: np.ndarray, 
     correction), the variance factor and the preintegration at the solution. The damping keeps a window whose
     motion does not show the heading from wandering off along that direction."""
     sigma_g, sigma_a = prior_sigma or (PRIOR_GYRO_BIAS, PRIOR_ACCEL_BIAS)
-    prior = np.concatenate([np.zeros(9), np.full(3, 1.0 / sigma_g**2), np.full(3, 1.0 / sigma_a**2)])
+    prior = np.zeros(FIT_N)
+    prior[_BG], prior[_BA] = 1.0 / sigma_g**2, 1.0 / sigma_a**2
     sigma = win.fixes.sigma.reshape(-1)
 
     def evaluate(C0, r0, v0, bias_g, bias_a, pre):
@@ -251,7 +263,8 @@ def _gauss_newton(win: _Window, C0: np.ndarray, r0: np.ndarray, v0: np.ndarray, 
         scale = max(1.4826 * float(np.median(np.abs(z))), 1.0)
         weights = np.minimum(1.0, HUBER_K * scale / np.maximum(np.abs(z), 1e-12))
         w = weights / sigma**2
-        x_b = np.concatenate([np.zeros(9), bias_g, bias_a])
+        x_b = np.zeros(FIT_N)
+        x_b[_BG], x_b[_BA] = bias_g, bias_a
         cost = float(np.sum(w * res**2) + np.sum(prior * x_b**2))
         return res, Jac, w, cost, x_b
 
@@ -264,8 +277,8 @@ def _gauss_newton(win: _Window, C0: np.ndarray, r0: np.ndarray, v0: np.ndarray, 
         improved = False
         while damping < 1e8:
             delta = np.linalg.solve(N + damping * np.diag(np.diag(N)), b)
-            trial = (rotvec_to_dcm(delta[0:3]) @ C0, r0 + delta[3:6], v0 + delta[6:9], bias_g + delta[9:12],
-                     bias_a + delta[12:15])
+            trial = (rotvec_to_dcm(delta[_ROT]) @ C0, r0 + delta[_POS], v0 + delta[_VEL], bias_g + delta[_BG],
+                     bias_a + delta[_BA])
             trial_pre = win.integrals(trial[3], trial[4])
             t_res, t_Jac, t_w, t_cost, t_xb = evaluate(*trial, trial_pre)
             if t_cost <= cost:
@@ -275,10 +288,10 @@ def _gauss_newton(win: _Window, C0: np.ndarray, r0: np.ndarray, v0: np.ndarray, 
                 improved = True
                 break
             damping *= 10.0
-        if not improved or (np.all(np.abs(delta[0:3]) < 1e-6) and np.all(np.abs(delta[9:12]) < 1e-8)):
+        if not improved or (np.all(np.abs(delta[_ROT]) < 1e-6) and np.all(np.abs(delta[_BG]) < 1e-8)):
             break
     N = Jac.T @ (Jac * w[:, None]) + np.diag(prior)
-    dof = max(len(res) - 15, 1)
+    dof = max(len(res) - FIT_N, 1)
     variance_factor = float(np.sum(w * res**2) / dof)
     cov = np.linalg.inv(N) * max(variance_factor, 1.0)
     return C0, r0, v0, bias_g, bias_a, cov, variance_factor, pre
@@ -287,9 +300,9 @@ def _gauss_newton(win: _Window, C0: np.ndarray, r0: np.ndarray, v0: np.ndarray, 
 def _heading_sigmas(C0: np.ndarray, pre, cov: np.ndarray) -> np.ndarray:
     """1-sigma [rad] of the heading at each fix time: ``φ(t) = ρ + C(t) J(t) δb_g`` (about down)."""
     dC, J = pre[0], pre[5]
-    G = np.zeros((len(dC), 3, 15))
-    G[:, :, 0:3] = np.eye(3)
-    G[:, :, 9:12] = C0 @ dC @ J
+    G = np.zeros((len(dC), 3, FIT_N))
+    G[:, :, _ROT] = np.eye(3)
+    G[:, :, _BG] = C0 @ dC @ J
     down = G[:, 2, :]
     return np.sqrt(np.maximum(np.einsum("ki,ij,kj->k", down, cov, down), 0.0))
 
@@ -377,8 +390,6 @@ def align(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, fix_time: np.ndarr
 
 #: where each block of the fit's correction vector (true = estimate + correction) starts: rotation ρ (with
 #: C0 <- exp([ρ x]) C0), r0 [m], v0 [m/s], gyro bias [rad/s], accelerometer bias [m/s^2]
-FIT_ROT, FIT_POS, FIT_VEL, FIT_BG, FIT_BA = 0, 3, 6, 9, 12
-FIT_N = 15
 
 
 def filter_order(cov: np.ndarray) -> np.ndarray:
@@ -447,7 +458,7 @@ def _prior_rejected(constrained, free, n_obs: int, freed: int) -> bool:
     allows? The statistic exceeds the F(freed, dof) quantile at ``PRIOR_TEST_LEVEL`` exactly when its tail
     probability is below ``1 - PRIOR_TEST_LEVEL`` (:func:`georef.distributions.f_sf`; scipy.special would cost
     every run 0.2 s of import)."""
-    dof_free = max(n_obs - 15, 1)
+    dof_free = max(n_obs - FIT_N, 1)
     misfit_c = constrained[6] * dof_free
     misfit_f = free[6] * dof_free
     statistic = max(misfit_c - misfit_f, 0.0) / freed / max(misfit_f / dof_free, 1e-12)

@@ -72,6 +72,12 @@ if TYPE_CHECKING:  # gtsam is imported where it is used; importing this module n
 Symbol = Callable[[int], int]
 
 CAUCHY_K = 4.0
+#: the calibration variable's entries: GNSS lever arm x, y, z [m, body], GNSS time offset [s]
+CAL_LEVER = slice(0, 3)
+CAL_TIME_OFFSET = 3
+#: a Pose3's tangent-space order (gtsam): rotation [rad] then translation [m], both in body axes
+POSE_ROT = slice(0, 3)
+POSE_TRANS = slice(3, 6)
 MAX_KEY_GAP = 1.5  # s; longer gaps between fixes get keyframes about once a second
 #: [m^2/s] position integration noise of the preintegration. GTSAM's examples use 1e-8; with a tactical-grade gyro
 #: (ARW 0.02 deg/sqrt(h)) over a 20-s flight the IMU factors then reached 1.8e7 in the whitened Jacobian against
@@ -148,8 +154,8 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings | ProcessingConfig,
     # loose priors at the first keyframe: the RTS's position there rests on the lever arm it applied, so its prior
     # also allows for the lever-arm prior's uncertainty and its distance from the configured one (else an untold
     # lever arm is pulled towards zero: 10 sigma in z on a PPK flight, 12 sigma under a campaign's prior)
-    lever_doubt = np.hypot(np.sqrt(np.trace(prior_cov[:3, :3])),
-                           np.linalg.norm(prior_mean[:3] - rts_lever))
+    lever_doubt = np.hypot(np.sqrt(np.trace(prior_cov[CAL_LEVER, CAL_LEVER])),
+                           np.linalg.norm(prior_mean[CAL_LEVER] - rts_lever))
     pos_sigma = np.hypot(np.sqrt(rts.pos_var_n[first]) * 3.0, lever_doubt)
     factors_at[0] = [
         gtsam.PriorFactorPose3(X(0), values.atPose3(X(0)), gtsam.noiseModel.Diagonal.Sigmas(
@@ -202,18 +208,19 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings | ProcessingConfig,
     sigma = _fix_sigmas(gnss, cfg) * np.sqrt([noise.r_scale_h, noise.r_scale_h, noise.r_scale_v])
     fixes = _fixes_at_keyframes(gnss, use, t, key_rows, to_plane, sigma)
     calibration = rts.diagnostics.calibration
-    lever_start = np.asarray(calibration.lever_arm if calibration is not None else prior_mean[:3], float)
+    lever_start = np.asarray(calibration.lever_arm if calibration is not None else prior_mean[CAL_LEVER], float)
     start = gtsam.Values(values)
     if cfg.graph.robust:
         # robust pass: a Cauchy kernel on every fix, the lever arm a variable, the time offset held at its prior
         # mean; the fixes it leaves as outliers are then dropped and the graph refitted with Gaussian factors
         cauchy = gtsam.noiseModel.mEstimator.Cauchy.Create(CAUCHY_K)
-        robust_factors = {k: [gtsam.GPSFactorArmCalib(X(k), LEVER, z + v_t[key_rows[k]] * (prior_mean[3] - lag),
+        offset = prior_mean[CAL_TIME_OFFSET]
+        robust_factors = {k: [gtsam.GPSFactorArmCalib(X(k), LEVER, z + v_t[key_rows[k]] * (offset - lag),
                                                       gtsam.noiseModel.Robust.Create(
                                                           cauchy, gtsam.noiseModel.Diagonal.Sigmas(fix_sigma)))]
                           for k, z, lag, fix_sigma in zip(fixes.key, fixes.z, fixes.lag, fixes.sigma, strict=True)}
         robust_factors[0] = robust_factors.get(0, []) + [gtsam.PriorFactorPoint3(
-            LEVER, prior_mean[:3], gtsam.noiseModel.Gaussian.Covariance(prior_cov[:3, :3]))]
+            LEVER, prior_mean[CAL_LEVER], gtsam.noiseModel.Gaussian.Covariance(prior_cov[CAL_LEVER, CAL_LEVER]))]
         robust_start = gtsam.Values(values)
         robust_start.insert(LEVER, lever_start)
         start = _optimise(gtsam, cfg, factors_at, robust_factors, robust_start, len(key_rows))
@@ -225,9 +232,9 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings | ProcessingConfig,
             nav.diagnostics.calibration = rts.diagnostics.calibration
             nav.diagnostics.lever_arm_given = rts.diagnostics.lever_arm_given
             return nav
-    inlier = _inliers(start, fixes, lever_start, prior_mean[3], cfg.gnss_gate.chi2) if cfg.graph.robust else \
-        np.ones(len(fixes.key), bool)
-    start.insert(CALIBRATION, np.concatenate([lever_start, prior_mean[3:]]))
+    inlier = _inliers(start, fixes, lever_start, prior_mean[CAL_TIME_OFFSET], cfg.gnss_gate.chi2) \
+        if cfg.graph.robust else np.ones(len(fixes.key), bool)
+    start.insert(CALIBRATION, np.concatenate([lever_start, prior_mean[CAL_TIME_OFFSET:]]))
     gnss_factors: dict[int, list] = {0: [gtsam.PriorFactorVector(CALIBRATION, prior_mean,
                                                                  gtsam.noiseModel.Gaussian.Covariance(prior_cov))]}
     kept = _Fixes(key=fixes.key[inlier], z=fixes.z[inlier], lag=fixes.lag[inlier], sigma=fixes.sigma[inlier])
@@ -249,8 +256,9 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings | ProcessingConfig,
     d_vel = v_keys - v_t[key_rows]
     cov = marginals.marginalCovariances([X(k) for k in range(n_keys)])  # (K, 6, 6), Pose3 tangent: body axes
     C_b_n_keys = np.swapaxes(C_n_t_rows[key_rows], -1, -2) @ R_keys
-    pos_var = np.diagonal(C_b_n_keys @ cov[:, 3:, 3:] @ np.swapaxes(C_b_n_keys, -1, -2), axis1=1, axis2=2)
-    att_cov = C_b_n_keys @ cov[:, :3, :3] @ np.swapaxes(C_b_n_keys, -1, -2)
+    pos_var = np.diagonal(C_b_n_keys @ cov[:, POSE_TRANS, POSE_TRANS] @ np.swapaxes(C_b_n_keys, -1, -2), axis1=1,
+                          axis2=2)
+    att_cov = C_b_n_keys @ cov[:, POSE_ROT, POSE_ROT] @ np.swapaxes(C_b_n_keys, -1, -2)
     d_rot = quat_to_rotvec(dcm_to_quat(R_keys @ np.swapaxes(C_b_t[key_rows], -1, -2)))  # plane-frame rotations
     rows = np.arange(len(t))
     interp = lambda data: np.stack([np.interp(rows, key_rows, data[:, j]) for j in range(data.shape[1])], -1)  # noqa: E731
@@ -286,8 +294,9 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings | ProcessingConfig,
         scale_factors = ScaleFactors(accel_ppm=scale[:3] * 1e6, accel_sigma_ppm=scale_sigmas[:3] * 1e6,
                                      gyro_ppm=scale[3:] * 1e6, gyro_sigma_ppm=scale_sigmas[3:] * 1e6,
                                      prior_sigma_ppm=scale_sigma * 1e6)
-    info = GraphInfo(lever_arm_m=estimate[:3], lever_arm_sigma_m=np.sqrt(np.diag(covariance)[:3]),
-                     time_offset_s=float(estimate[3]), time_offset_sigma_s=float(np.sqrt(covariance[3, 3])),
+    info = GraphInfo(lever_arm_m=estimate[CAL_LEVER], lever_arm_sigma_m=np.sqrt(np.diag(covariance)[CAL_LEVER]),
+                     time_offset_s=float(estimate[CAL_TIME_OFFSET]),
+                     time_offset_sigma_s=float(np.sqrt(covariance[CAL_TIME_OFFSET, CAL_TIME_OFFSET])),
                      calibration=GraphCalibration(mean=estimate, covariance=covariance, prior_mean=prior_mean,
                                                   prior_covariance=prior_cov),
                      rejected_fixes=int(np.sum(~inlier)), fixes=len(inlier), rts_separation_sigma=separation,
@@ -421,8 +430,8 @@ def _antenna_residuals(values: gtsam.Values, fixes: _Fixes,
     (pose ``R, p``, velocity ``v`` [m/s]) with calibration ``(l [m, body], dt [s])``; and the keyframes' rotations
     ``R`` (F, 3, 3) and velocities (F, 3)."""
     R, p, v = _keyframe_states(values, fixes.key)
-    lag = fixes.lag[:, None] - calibration[3]
-    return p + lever_arm_offset(R, calibration[:3]) + v * lag - fixes.z, R, v
+    lag = fixes.lag[:, None] - calibration[CAL_TIME_OFFSET]
+    return p + lever_arm_offset(R, calibration[CAL_LEVER]) + v * lag - fixes.z, R, v
 
 
 def _gnss_factors(gtsam: ModuleType, fixes: _Fixes, at: gtsam.Values) -> list[gtsam.LinearContainerFactor]:
@@ -442,8 +451,8 @@ def _gnss_factors(gtsam: ModuleType, fixes: _Fixes, at: gtsam.Values) -> list[gt
     calibration = np.asarray(at.atVector(CALIBRATION), float)
     residual, R, v = _antenna_residuals(at, fixes, calibration)
     weight = 1.0 / fixes.sigma[:, :, None]
-    H_pose = np.concatenate([lever_arm_rotation_jacobian(R, calibration[:3]), R], axis=2) * weight
-    H_v = np.eye(3) * (fixes.lag - calibration[3])[:, None, None] * weight
+    H_pose = np.concatenate([lever_arm_rotation_jacobian(R, calibration[CAL_LEVER]), R], axis=2) * weight
+    H_v = np.eye(3) * (fixes.lag - calibration[CAL_TIME_OFFSET])[:, None, None] * weight
     H_c = np.concatenate([R, -v[:, :, None]], axis=2) * weight
     b = -residual / fixes.sigma
     unit = gtsam.noiseModel.Unit.Create(3)

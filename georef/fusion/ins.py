@@ -45,8 +45,9 @@ from georef.frames import (
     euler_to_dcm,
     geodetic_to_ecef,
 )
+from georef.frames.earth import lat_lon_to_ned
 from georef.frames.mounting import lever_arm_ecef
-from georef.frames.rotations import dcm_to_euler, euler_error_jacobian, quat_to_dcm, wrap_pi
+from georef.frames.rotations import dcm_to_euler, euler_error_jacobian, quat_to_dcm, quat_to_rotvec, wrap_pi
 from georef.fusion import ins_layout as layout
 from georef.fusion.alignment import VARIANCE_FACTOR_RETRY, Alignment, align
 from georef.fusion.noise import (
@@ -846,6 +847,30 @@ def _linearisation_start(x0: np.ndarray, start_state: np.ndarray, level_from_gra
     return x
 
 
+def state_error(x_est: np.ndarray, x_ref: np.ndarray, nx: int) -> np.ndarray:
+    """The error state (nx,) of the nominal state ``x_est`` (NS,) against ``x_ref`` taken as the truth, in the
+    filter's convention (estimate minus truth; removing it from ``x_est`` with
+    :func:`georef.fusion.ins_kernel.correct_state` gives ``x_ref`` to first order): NED position [m], velocity,
+    attitude ``φ`` with ``C_ref = exp([φ x]) C_est`` [rad], then the other states as differences."""
+    dx = np.zeros(nx)
+    lat = float(x_ref[layout.X_LAT])
+    north, east = lat_lon_to_ned(x_est[layout.X_LAT] - x_ref[layout.X_LAT], x_est[layout.X_LON] - x_ref[layout.X_LON],
+                                 lat, x_ref[layout.X_HGT])
+    dx[layout.POS:layout.POS + 3] = north, east, x_ref[layout.X_HGT] - x_est[layout.X_HGT]
+    C_est = quat_to_dcm(x_est[layout.X_QUAT:layout.X_QUAT + 4])
+    C_ref = quat_to_dcm(x_ref[layout.X_QUAT:layout.X_QUAT + 4])
+    dx[layout.ATT:layout.ATT + 3] = quat_to_rotvec(dcm_to_quat(C_ref @ C_est.T))
+    pairs = [(layout.VEL, layout.X_VEL, 3), (layout.BG, layout.X_BG, 3), (layout.BA, layout.X_BA, 3),
+             (layout.UNIT_LEVEL, layout.X_UNIT_LEVEL, 2), (layout.UNIT_YAW, layout.X_UNIT_YAW, 1),
+             (layout.UNIT_DRIFT, layout.X_UNIT_DRIFT, 1), (layout.GNSS_GM, layout.X_GNSS_GM, 3)]
+    if nx > layout.LEVER:
+        pairs += [(layout.LEVER, layout.X_LEVER, 3), (layout.LATENCY, layout.X_LATENCY, 1)]
+    for error, nominal, size in pairs:
+        dx[error:error + size] = x_est[nominal:nominal + size] - x_ref[nominal:nominal + size]
+    dx[layout.UNIT_YAW] = wrap_pi(dx[layout.UNIT_YAW])
+    return dx
+
+
 def _restart_heading(inputs: InsInputs, cfg: InsSettings, alignment: Alignment, x_prev: np.ndarray) -> None:
     """The heading of a re-alignment whose data do not show it at once: another source's (the unit's yaw with
     its IACC origin, the autopilot's, a magnetometer), else the one the filter had, loosely."""
@@ -888,10 +913,15 @@ def _run_pass(inputs: InsInputs, cfg: InsSettings, alignment: Alignment, noise: 
     auxes: list[tuple] = []
     restarts: list[Restart] = []
     x0, P0 = _initial_state(inputs, cfg, alignment, noise, calibrate, lever, latency)
+    # the prior's mean stays the alignment's whatever point the pass linearises about: the nominal start's
+    # error against it, carried through the filter and the smoother (kernel.prior_shift)
+    prior_error = np.zeros(nx)
     if start_state is not None:
+        x_prior = x0
         x0 = _linearisation_start(x0, start_state, alignment.level is not None)
         x0[layout.X_LEVER:layout.X_LEVER + 3] = lever
         x0[layout.X_LATENCY] = latency
+        prior_error = state_error(x0, x_prior, nx)
     diverged = False
     start_row = alignment.start_row
     max_rejects = MAX_CONSECUTIVE_REJECTS
@@ -1005,23 +1035,36 @@ def _run_pass(inputs: InsInputs, cfg: InsSettings, alignment: Alignment, noise: 
     rows = None
     first_state = last_state = None
     forward = None
+    if np.any(prior_error):
+        m_plus, m_minus = kernel.prior_shift(ep_Pm, ep_Pp, ep_Phi, seg_start, prior_error)
+    else:
+        m_plus = m_minus = np.zeros((len(ep_row), nx))
     if smooth:
         if rows_wanted:
-            forward = (nav[ep_row].copy(), ep_Pp[:, :layout.ATT + 3, :layout.ATT + 3].copy())
+            forward = (_shifted(nav[ep_row], m_plus), ep_Pp[:, :layout.ATT + 3, :layout.ATT + 3].copy())
         err_post, err_pre, stats = kernel.rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start,
                                                        outage_rows[ep_row], noise_vec,
-                                                       fix_epoch, fix_z, fix_H, fixes.r, fix_status, *aux, want_stats)
+                                                       fix_epoch, fix_z, fix_H, fixes.r, fix_status, *aux, want_stats,
+                                                       m_plus)
         first_state = kernel.corrected(nav[ep_row[0]], err_post[0])
         last_state = kernel.corrected(nav[ep_row[-1]], err_post[-1])
         if rows_wanted:
             rows = kernel.finish_rows(t, nav, ep_row, err_post, err_pre, ep_Pp, ep_Pp)
     elif rows_wanted:
-        zeros = np.zeros((len(ep_row), nx))
-        rows = kernel.finish_rows(t, nav, ep_row, zeros, zeros, ep_Pp, ep_Pm)
+        rows = kernel.finish_rows(t, nav, ep_row, m_plus, m_minus, ep_Pp, ep_Pm)
     return _Pass(nav=nav, ep_row=ep_row, ep_Pp=ep_Pp, ep_Pm=ep_Pm, seg_start=seg_start, fix_status=fix_status,
                  fix_z=fix_z, fix_S=fix_S, fix_d2=fix_d2, stats=stats if want_stats else None, restarts=restarts,
                  rows=rows, loglik=loglik, first_state=first_state, last_state=last_state, diverged=diverged,
                  forward=forward, epoch_loglik=epoch_loglik, smoothed=smooth)
+
+
+def _shifted(states: np.ndarray, errors: np.ndarray) -> np.ndarray:
+    """Nominal states (E, NS) with the error means (E, nx) removed, a copy; rows without an error as they are."""
+    out = states.copy()
+    kernel = load_kernel("ins")
+    for j in np.flatnonzero(np.any(errors != 0.0, axis=1)):
+        out[j] = kernel.corrected(states[j], errors[j])
+    return out
 
 
 def _joined(parts: list[np.ndarray]) -> np.ndarray:

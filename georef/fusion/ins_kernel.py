@@ -827,13 +827,40 @@ def _measurement_statistic(e: np.ndarray, cov: np.ndarray, r: np.ndarray, lo: in
 
 
 @njit(cache=True)
+def prior_shift(ep_Pm, ep_Pp, ep_Phi, seg_start, mu):
+    """The forward filter's error mean (E, nx) after (``m⁺``) and before (``m⁻``) each epoch's updates had its
+    first segment started with the error mean ``mu`` (nx,) instead of zero, the gains and the linearisation
+    unchanged.
+
+    Each epoch's updates map a pre-update error mean through ``I - K H``, which for the optimal gain is
+    ``P⁺ (P⁻)⁻¹`` whatever the updates were (none: the identity); the propagation maps it through ``Φ``. Zero
+    from the first restart on (``seg_start``): a restart takes a fresh prior."""
+    n_ep = ep_Pp.shape[0]
+    nx = ep_Pp.shape[1]
+    m_plus = np.zeros((n_ep, nx))
+    m_minus = np.zeros((n_ep, nx))
+    m_minus[0] = mu
+    m_plus[0] = mu
+    m_pred = np.empty(nx)
+    for j in range(1, n_ep):
+        if seg_start[j]:
+            break
+        np.dot(ep_Phi[j], m_plus[j - 1], m_pred)
+        m_minus[j] = m_pred
+        np.dot(ep_Pp[j], np.linalg.solve(ep_Pm[j], m_pred), m_plus[j])
+    return m_plus, m_minus
+
+
+@njit(cache=True)
 def rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, ep_outage, noise, fix_epoch, fix_z, fix_H, r_fix,
-                 fix_status, aux_epoch, aux_kind, aux_z, aux_H, aux_status, aux_r, want_stats):
+                 fix_status, aux_epoch, aux_kind, aux_z, aux_H, aux_status, aux_r, want_stats, m_plus):
     """RTS smoother over the covariance epochs of the closed-loop filter, segment by segment, in place.
 
     ``seg_start[j]`` marks an epoch where the filter was restarted: no information crosses it; the process noise
     of the interval ending at an epoch with ``ep_outage[j]`` (inside a GNSS outage) counts towards B_OUTAGE, all
-    blocks pooled, instead of its own blocks. Returns per
+    blocks pooled, instead of its own blocks. ``m_plus`` (E, nx) is the filter's error mean after each epoch's
+    updates beyond the zero the closed loop leaves (:func:`prior_shift`: a prior mean other than the nominal
+    start); zeros for none. Returns per
     epoch the smoothed error of the post-update nominal (E, nx) and of the pre-update nominal (E, nx);
     ``ep_Pp`` then holds the smoothed covariances. With ``want_stats``, also the EM statistics (N_BLOCKS, 3):
     per noise block the sum of squared normalised smoothed residuals, the sum of the normalised posterior
@@ -843,6 +870,9 @@ def rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, ep_outage, noise
     nx = ep_Pp.shape[1]
     err_post = np.zeros((n_ep, nx))
     err_pre = np.zeros((n_ep, nx))
+    # the smoothed part of the error that m_plus brings: s_j = m⁺_j + A_j (s_{j+1} - Φ m⁺_j)
+    shift = np.zeros((n_ep, nx))
+    shift[n_ep - 1] = m_plus[n_ep - 1]
     stats = np.zeros((N_BLOCKS, 3))
     err_pre[n_ep - 1] = ep_dx[n_ep - 1]
     blocks = [np.array([POS, POS + 1, VEL, VEL + 1]), np.array([POS + 2, VEL + 2]), np.array([ATT, ATT + 1]),
@@ -860,10 +890,13 @@ def rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, ep_outage, noise
     Qd = np.empty((nx, nx))
     cov_w = np.empty((nx, nx))
     w = np.empty(nx)
+    m_pred = np.empty(nx)
+    post_total = np.empty(nx)
     for j in range(n_ep - 2, -1, -1):
         if seg_start[j + 1]:
             err_post[j] = 0.0
             err_pre[j] = ep_dx[j]
+            shift[j] = m_plus[j]
             continue
         Phi = ep_Phi[j + 1]
         P_plus = ep_Pp[j]  # read before ep_Pp[j] receives the smoothed covariance, below
@@ -874,6 +907,12 @@ def rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, ep_outage, noise
         np.dot(A, err_pre[j + 1], err_post[j])
         for i in range(nx):
             err_pre[j, i] = ep_dx[j, i] + err_post[j, i]
+        np.dot(Phi, m_plus[j], m_pred)
+        for i in range(nx):
+            m_pred[i] = shift[j + 1, i] - m_pred[i]
+        np.dot(A, m_pred, shift[j])
+        for i in range(nx):
+            shift[j, i] += m_plus[j, i]
         P_next = ep_Pp[j + 1]
         for a in range(nx):
             for b in range(nx):
@@ -888,9 +927,11 @@ def rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, ep_outage, noise
                 P_s[a, b] = 0.5 * (M1[a, b] + M1[b, a])
         if want_stats:
             # process noise between epochs j and j+1: w = ε⁻_{j+1} - Φ ε⁺_j, its mean and posterior covariance
-            np.dot(Phi, err_post[j], w)
             for i in range(nx):
-                w[i] = err_pre[j + 1, i] - w[i]
+                post_total[i] = err_post[j, i] + shift[j, i]
+            np.dot(Phi, post_total, w)
+            for i in range(nx):
+                w[i] = err_pre[j + 1, i] + shift[j + 1, i] - w[i]
             np.dot(PhiPp, Phi.T, M1)  # Φ P⁺ Φᵀ
             for a in range(nx):
                 for b in range(nx):
@@ -905,6 +946,10 @@ def rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, ep_outage, noise
             for b in range(len(blocks)):
                 _block_statistic(w, cov_w, Qd, blocks[b], stats, B_OUTAGE if ep_outage[j + 1] else block_ids[b])
         ep_Pp[j] = P_s
+    for j in range(n_ep):
+        for i in range(nx):
+            err_post[j, i] += shift[j, i]
+            err_pre[j, i] += shift[j, i]
     if want_stats:
         r_scale = np.array([noise[R_SCALE_H], noise[R_SCALE_H], noise[R_SCALE_V]])
         for k in range(fix_epoch.shape[0]):

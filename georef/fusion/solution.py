@@ -49,6 +49,11 @@ class GnssUse:
         return np.sum(self.innovation**2 / self.innovation_var, axis=1)
 
 
+#: a separation's sigma below this share of the forward filter's own is taken as zero (the two agree there by
+#: construction) and left out of :meth:`ForwardSeparation.sigma_scale`
+SEPARATION_SIGMA_FLOOR = 0.05
+
+
 @dataclass
 class ForwardSeparation:
     """The forward filter's solution against the smoothed one, at the filter's covariance epochs.
@@ -70,6 +75,21 @@ class ForwardSeparation:
     attitude_sigma: np.ndarray
     forward_position_sigma: np.ndarray
     forward_attitude_sigma: np.ndarray
+
+    def sigma_scale(self) -> tuple[np.ndarray, np.ndarray]:
+        """How far the sigmas are borne out on this flight: rms(separation / its sigma) of the position (north,
+        east, down) and the attitude (roll, pitch, yaw) (3,) each; 1 when the filter's model fits the data, above
+        1 when its sigmas are too small. Epochs where the separation's sigma vanishes (the forward filter and the
+        smoother agree by construction: the last epoch of each segment) do not count; NaN when none is left."""
+        def scale(separation: np.ndarray, sigma: np.ndarray, forward_sigma: np.ndarray) -> np.ndarray:
+            usable = sigma > SEPARATION_SIGMA_FLOOR * np.maximum(forward_sigma, 1e-12)
+            z2 = np.where(usable, (separation / np.where(usable, sigma, 1.0)) ** 2, 0.0)
+            count = usable.sum(axis=0)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                return np.where(count > 0, np.sqrt(z2.sum(axis=0) / np.maximum(count, 1)), np.nan)
+
+        return (scale(self.position, self.position_sigma, self.forward_position_sigma),
+                scale(self.attitude, self.attitude_sigma, self.forward_attitude_sigma))
 
 
 @dataclass

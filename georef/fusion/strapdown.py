@@ -34,6 +34,7 @@ from georef.frames.kernels import (
     quat_to_dcm,
     transport_rate,
 )
+from georef.fusion.ins_layout import X_BA, X_BG, X_HGT, X_LAT, X_LON, X_QUAT, X_VEL
 
 
 @njit(cache=True)
@@ -41,8 +42,8 @@ def increments(gyro_prev: np.ndarray, gyro: np.ndarray, accel_prev: np.ndarray, 
                x: np.ndarray, dtheta: np.ndarray, dvel: np.ndarray) -> None:
     """Bias-corrected angle and velocity increments of an interval from point samples (trapezoid)."""
     for i in range(3):
-        dtheta[i] = (0.5 * (gyro_prev[i] + gyro[i]) - x[10 + i]) * dt
-        dvel[i] = (0.5 * (accel_prev[i] + accel[i]) - x[13 + i]) * dt
+        dtheta[i] = (0.5 * (gyro_prev[i] + gyro[i]) - x[X_BG + i]) * dt
+        dvel[i] = (0.5 * (accel_prev[i] + accel[i]) - x[X_BA + i]) * dt
 
 
 @njit(cache=True)
@@ -106,12 +107,12 @@ def mechanise_into(x: np.ndarray, dtheta: np.ndarray, dvel: np.ndarray, dtheta_p
     the same buffer each time instead of allocating some twenty small arrays per row (they were a quarter
     of the forward filter's time). The arithmetic is written out element by element in the order the array
     expressions evaluated it, so the states are the same to the bit."""
-    lat, lon, h = x[0], x[1], x[2]
+    lat, lon, h = x[X_LAT], x[X_LON], x[X_HGT]
     v, w_ie, w_en, zeta, phi, dv_b, dv_n, t1 = work[0], work[1], work[2], work[3], work[4], work[5], work[6], work[7]
     v_new, t2, v_mid = work[8], work[9], work[10]
     q_body, q_nav, q_prod, q_new = work[11], work[12], work[13], work[14]
     for i in range(3):
-        v[i] = x[3 + i]
+        v[i] = x[X_VEL + i]
     earth_rate(lat, w_ie)
     transport_rate(lat, h, v, w_en)
     for i in range(3):
@@ -121,7 +122,7 @@ def mechanise_into(x: np.ndarray, dtheta: np.ndarray, dvel: np.ndarray, dtheta_p
 
     # velocity, with the body rotation vector (coning) for the attitude below
     add_two_sample_corrections(dtheta, dvel, dtheta_prev, dvel_prev, phi, dv_b)
-    quat_to_dcm(x[6:10], C)
+    quat_to_dcm(x[X_QUAT:X_QUAT + 4], C)
     np.dot(C, dv_b[:3], dv_n[:3])
     cross(zeta, dv_n, t1)
     for i in range(3):
@@ -150,15 +151,15 @@ def mechanise_into(x: np.ndarray, dtheta: np.ndarray, dvel: np.ndarray, dtheta_p
     for i in range(3):
         t2[i] = -(w_ie[i] + w_en[i]) * dt
     quat_from_rotvec_into(t2, q_nav)
-    quat_mul_into(q_nav, x[6:10], q_prod)
+    quat_mul_into(q_nav, x[X_QUAT:X_QUAT + 4], q_prod)
     quat_mul_into(q_prod, q_body, q_new)
     quat_normalise(q_new)
 
-    x[0], x[1], x[2] = lat_new, lon_new, h_new
+    x[X_LAT], x[X_LON], x[X_HGT] = lat_new, lon_new, h_new
     for i in range(3):
-        x[3 + i] = v_new[i]
+        x[X_VEL + i] = v_new[i]
     for i in range(4):
-        x[6 + i] = q_new[i]
+        x[X_QUAT + i] = q_new[i]
     quat_to_dcm(q_new, C)
 
 

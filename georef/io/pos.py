@@ -48,6 +48,33 @@ TRIG_TIME_RANGE = (0, 8_640_100)
 BASE_ROLES = ("trig_time", "sampl_time", "lat", "lon", "alt")
 
 
+def _one_edit_apart(a: str, b: str) -> bool:
+    """Whether ``a`` becomes ``b`` by one inserted, deleted or replaced character (case ignored)."""
+    a, b = a.upper(), b.upper()
+    if a == b or abs(len(a) - len(b)) > 1:
+        return False
+    if len(a) > len(b):
+        a, b = b, a
+    i = 0
+    while i < len(a) and a[i] == b[i]:
+        i += 1
+    return a[i + (len(a) == len(b)):] == b[i + 1:]
+
+
+def _check_near_misses(path: Path, header: list[str], wanted: Mapping[str, Kind]) -> None:
+    """A header name one edit away from a column georef reads, where that column is absent, is a damaged header
+    (a flipped byte turned ``IACC_X`` into ``IACC\x1f_X``): an error naming both, never a column silently dropped."""
+    present = {name.upper() for name in header}
+    for name in wanted:
+        if name.upper() in present:
+            continue
+        for index, found in enumerate(header):
+            if found.upper() not in {w.upper() for w in wanted} and _one_edit_apart(found, name):
+                raise InputError(path, 1, name, f"header field {index + 1} is {found!r}, one character away from "
+                                 f"the column {name!r}, which the file lacks: a damaged header? Correct the name "
+                                 f"(or map the column in [pos_columns] of the flight configuration)")
+
+
 @dataclass
 class PosLog:
     """A POS log on the continuous time scale (or an autopilot log's IMU and GNSS handed over in the same form,
@@ -118,6 +145,7 @@ def read_pos(
     required = set(BASE_ROLES) | set(required_roles)
     wanted = {names[role]: POS_ROLES[role][1] for role in POS_ROLES}
     table = read_table(path, wanted, required={names[role] for role in required})
+    _check_near_misses(path, table.header, wanted)
     notices = list(table.notices)
     data = {role: table.columns[names[role]] for role in POS_ROLES if names[role] in table.columns}
     # the file's own spelling of each column, for messages
