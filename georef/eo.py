@@ -41,6 +41,11 @@ EO_COLUMNS = ["frame", "time", "lat", "lon", "height", "roll", "pitch", "yaw", "
 
 FLAG_OUTSIDE = "outside navigation span"
 FLAG_OUTAGE = "in GNSS outage"
+#: between IMU rows farther apart than the log's rows (rows lost or deleted): "in IMU gap (0.92 s)"; the sigmas
+#: there carry the flight's own motion over that span (georef.exposure.gap_departure)
+FLAG_IMU_GAP = "in IMU gap"
+#: within a second (or the gap's length) of an IMU gap: "near an IMU gap (0.92 s)"
+FLAG_NEAR_IMU_GAP = "near an IMU gap"
 FLAG_DUPLICATE = "duplicate frame number"
 FLAG_ORDER = "time earlier than previous frame"
 #: inertial only at the ends of the log: "after the last GNSS fix (12 s of inertial only)"
@@ -66,6 +71,12 @@ def _flags(exposures: Exposures, states: ExposureStates, gnss: GnssEpochs, outag
             flags[i].append(f"{FLAG_AFTER_LAST_FIX} ({exposures.time[i] - last:.0f} s of inertial only)")
         for i in np.flatnonzero(states.inside & (exposures.time < first - outage_min_s)):
             flags[i].append(f"{FLAG_BEFORE_FIRST_FIX} ({first - exposures.time[i]:.0f} s of inertial only)")
+    if states.imu_gap_s is not None:
+        for i in np.flatnonzero(states.inside & (states.imu_gap_s > 0.0)):
+            flags[i].append(f"{FLAG_IMU_GAP} ({states.imu_gap_s[i]:.2f} s)")
+    if states.near_imu_gap_s is not None:
+        for i in np.flatnonzero(states.inside & (states.near_imu_gap_s > 0.0)):
+            flags[i].append(f"{FLAG_NEAR_IMU_GAP} ({states.near_imu_gap_s[i]:.2f} s)")
     for i in np.flatnonzero(repeated_frames(exposures.frame)):
         flags[i].append(FLAG_DUPLICATE)
     for i in np.flatnonzero(np.diff(exposures.time) < 0) + 1:
@@ -103,6 +114,7 @@ def camera_eo_columns(exposures: Exposures, states: ExposureStates, gnss: GnssEp
     camera position's variance gains the IMU's velocity times it, squared.
 
     Flags (joined by ``"; "``): outside the navigation span; in a GNSS outage of at least ``outage_min_s`` [s];
+    between IMU rows farther apart than the log's (an IMU gap, with its length) or near such a gap;
     more than ``outage_min_s`` after the last GNSS fix or before the first one (with the seconds of inertial-only
     navigation); a duplicate frame number; a time earlier than the previous frame's.
 

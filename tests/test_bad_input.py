@@ -669,6 +669,54 @@ def test_spike_within_the_sensor_range_is_repaired_and_reported(tmp_path, bundle
         assert errors[angle] < base[angle] + 0.01, (angle, errors, base)
 
 
+@pytest.mark.parametrize("method", ["rts", "ekf"])
+def test_a_burst_of_corrupt_rows_is_repaired_and_reported(tmp_path, bundled_config, bundled_truth, baseline_errors,
+                                                         method):
+    """Ten consecutive rows of OMGS_Z = 500 deg/s (a logger's corrupted burst): repaired as one spike (the straight
+    line between the rows either side) with a notice naming the ten lines; unrepaired they turned the yaw 99 deg
+    (rts) and 98 deg (ekf) with exit 0."""
+    def edit(lines: list[str], header: list[str]) -> None:
+        for row in range(1000, 1010):
+            _edit_cell(row, "OMGS_Z", lambda v: "500")(lines, header)
+
+    pos = _bundled_pos(tmp_path, edit)
+    result = process(pos, DATA / "Kamera.txt", bundled_config.updated(method=method))
+    notes = [n for n in result.notices if "spike" in n.message]
+    assert len(notes) == 1 and notes[0].lines == list(range(1001, 1011)) and notes[0].column == "OMGS_Z"
+    errors = _max_errors(result.table, bundled_truth)
+    base = baseline_errors["rts"] if method == "rts" else _max_errors(
+        process(DATA / "POS.txt", DATA / "Kamera.txt", bundled_config.updated(method=method)).table, bundled_truth)
+    for angle in ("roll", "pitch", "yaw"):
+        assert errors[angle] < base[angle] + 0.01, (angle, errors, base)
+
+
+@pytest.mark.parametrize("method", ["rts", "ekf"])
+def test_frames_in_and_near_an_imu_gap_are_flagged_with_grown_sigmas(tmp_path, bundled_config,
+                                                                              bundled_truth, method):
+    """46 POS rows deleted mid-flight (a 0.94-s IMU gap, as a logger that lost a block): every frame inside the gap
+    is flagged with its length, and its angle sigmas grow by the flight's own motion over such a span (before: roll
+    1.09 deg off with a 0.017 deg sigma, no flag, exit 0); the frames within a second of the gap are flagged as near
+    it; every frame the deletion moves by more than 2 sigma carries one of the two flags. (The grown sigmas do not
+    cover the errors yet: with rts the gap's three frames are 10.7, 4.5 and 3.8 times their roll sigma off the
+    truth, so the flag is what tells.)"""
+    def edit(lines: list[str], header: list[str]) -> None:
+        del lines[4001:4047]
+
+    pos = _bundled_pos(tmp_path, edit)
+    cfg = bundled_config.updated(method=method)
+    table = process(pos, DATA / "Kamera.txt", cfg).table
+    clean = process(DATA / "POS.txt", DATA / "Kamera.txt", cfg).table
+    inside = table["flag"].str.contains("in IMU gap (0.9", regex=False).to_numpy()
+    near = table["flag"].str.contains("near an IMU gap", regex=False).to_numpy()
+    assert inside.sum() >= 2 and near.sum() >= 4, table.loc[inside | near, ["frame", "time", "flag"]]
+    for angle in ("roll", "pitch", "yaw"):
+        grown = table[f"sigma_{angle}"].to_numpy()[inside] / clean[f"sigma_{angle}"].to_numpy()[inside]
+        assert grown.max() > 1.2, (angle, grown)  # most midway between the rows either side
+        move = np.abs((table[angle] - clean[angle] + 180.0) % 360.0 - 180.0).to_numpy()
+        moved = move > 2.0 * table[f"sigma_{angle}"].to_numpy()
+        assert np.all(inside[moved] | near[moved]), (angle, table.loc[moved, ["frame", "flag"]])
+
+
 def _move_fix(delta_lat: float, lasting: bool):
     def edit(lines: list[str], header: list[str]) -> None:
         lat = header.index("LATITUDE")

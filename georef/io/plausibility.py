@@ -1,14 +1,15 @@
-"""Plausibility of the POS log's physical quantities: impossible values are errors, one-row spikes are repaired.
+"""Plausibility of the POS log's physical quantities: impossible values are errors, short spikes are repaired.
 
 Three tests, each stated with its values in ``docs/formats.md`` ("Plausibility limits"):
 
 * **Range** (:data:`LIMITS`): a value no sensor of the kind can produce (beyond the full-scale range of any
   navigation IMU, an angle outside its definition, a height no aircraft reaches) is an error naming line
   and column: it is not a measurement, and nothing else in the file can be trusted to be right around it.
-* **Spikes** (:func:`repair_spikes`): a value on one row that departs from *both* neighbours, in the same
-  direction, by more than :data:`SPIKE_FACTOR` times the local sample-to-sample scatter (and at least the
-  quantity's floor in :data:`SPIKE_FLOOR`), while the neighbours agree with each other, is replaced by the
-  mean of its neighbours and reported with its line. The filter would otherwise integrate it.
+* **Spikes** (:func:`repair_spikes`): a value on one row, or a run of up to :data:`SPIKE_RUN` rows, that departs
+  from *both* neighbours, in the same direction, by more than :data:`SPIKE_FACTOR` times the local sample-to-sample
+  scatter (and at least the quantity's floor in :data:`SPIKE_FLOOR`), while the neighbours agree with each other,
+  is replaced by the straight line between its neighbours and reported with its lines. The filter would otherwise
+  integrate it (ten rows of 500 deg/s turned the bundled flight's yaw 99 deg).
 * **GNSS jumps** (:func:`check_gnss_jumps`): consecutive fixes implying more than :data:`MAX_GNSS_SPEED`. A
   single such fix between two consistent ones is dropped with a notice; a lasting jump is an error.
 """
@@ -64,6 +65,9 @@ SPIKE_FLOOR: dict[str, float] = {
 }
 #: the steps either side of a row over which its local scatter (median absolute step) is taken
 SPIKE_BLOCK = 250
+#: the longest run of rows taken as one spike: a logger's corrupted burst, not motion (no vehicle turns at hundreds of
+#: deg/s and back to the rate it had within a few hundredths of a second)
+SPIKE_RUN = 10
 #: fastest plausible motion between consecutive GNSS fixes [m/s]
 MAX_GNSS_SPEED = 600.0
 
@@ -102,42 +106,64 @@ def check_ranges(path: Path, data: Mapping[str, np.ndarray], lines: np.ndarray, 
                          f"{limit.unit} ({limit.why})")
 
 
-def find_spikes(values: np.ndarray, floor: float, wrap: float | None = None) -> np.ndarray:
-    """Indices of one-row spikes in ``values`` (see the module docstring); ``wrap`` [deg] for angles.
+def find_spikes(values: np.ndarray, floor: float, wrap: float | None = None) -> list[tuple[int, int]]:
+    """Spikes in ``values`` as (first, last) rows, inclusive (see the module docstring); ``wrap`` [deg] for angles.
 
-    Row ``i`` (not the first or last) is a spike when ``x[i] - x[i-1]`` and ``x[i] - x[i+1]`` have the same sign
-    and both exceed ``max(floor, SPIKE_FACTOR * s)``, where ``s`` is the median absolute step over the
-    :data:`SPIKE_BLOCK` steps either side, and ``|x[i+1] - x[i-1]|`` is less than half the smaller of the two.
-    Only rows whose steps exceed ``floor`` are examined further, so a clean channel costs a few array passes.
+    Rows ``i..j-1`` (at most :data:`SPIKE_RUN` of them, not touching either end) are a spike when the step into
+    them, ``x[i] - x[i-1]``, and the step out, ``x[j-1] - x[j]``, have the same sign and both exceed
+    ``max(floor, SPIKE_FACTOR * s)``, where ``s`` is the median absolute step over the :data:`SPIKE_BLOCK` steps
+    either side; when the rows either side agree, ``|x[j] - x[i-1]|`` less than half the smaller step; and when
+    every row of the run lies beyond half the smaller step from the straight line between them, on the step's
+    side. The shortest such run wins. Only rows whose step in exceeds ``floor`` are examined further, so a clean
+    channel costs a few array passes.
     """
     n = len(values)
     if n < 5:
-        return np.zeros(0, dtype=int)
+        return []
     step = np.diff(values)
     if wrap is not None:
         step = (step + wrap / 2) % wrap - wrap / 2
     size = np.abs(step)
-    candidates = np.flatnonzero(np.minimum(size[:-1], size[1:]) > floor) + 1
-    spikes = []
-    for i in candidates.tolist():
-        left, right = step[i - 1], -step[i]
-        if (left > 0) != (right > 0):
+    runs: list[tuple[int, int]] = []
+    covered = -1
+    for i in (np.flatnonzero(size[:-1] > floor) + 1).tolist():
+        if i <= covered:
             continue
+        run = _spike_run(values, step, size, i, floor, wrap)
+        if run is not None:
+            runs.append(run)
+            covered = run[1]
+    return runs
+
+
+def _spike_run(values: np.ndarray, step: np.ndarray, size: np.ndarray, i: int, floor: float,
+               wrap: float | None) -> tuple[int, int] | None:
+    """The shortest spike starting at row ``i`` (:func:`find_spikes`), or None."""
+    n = len(values)
+    left = step[i - 1]
+    threshold = max(floor, SPIKE_FACTOR * float(np.median(size[max(0, i - SPIKE_BLOCK): i + SPIKE_BLOCK])))
+    for j in range(i + 1, min(i + SPIKE_RUN, n - 1) + 1):
+        right = -step[j - 1]
         smaller = min(abs(left), abs(right))
-        across = step[i - 1] + step[i]
+        if (left > 0) != (right > 0) or smaller <= threshold:
+            continue
+        across = values[j] - values[i - 1]
         if wrap is not None:
             across = (across + wrap / 2) % wrap - wrap / 2
         if abs(across) >= 0.5 * smaller:
             continue
-        scale = float(np.median(size[max(0, i - SPIKE_BLOCK): i + SPIKE_BLOCK]))
-        if smaller > SPIKE_FACTOR * scale:
-            spikes.append(i)
-    return np.asarray(spikes, dtype=int)
+        offset = values[i:j] - (values[i - 1] + across * np.arange(1, j - i + 1) / (j - i + 1))
+        if wrap is not None:
+            offset = (offset + wrap / 2) % wrap - wrap / 2
+        if np.all(np.sign(left) * offset > 0.5 * smaller):
+            return i, j - 1
+    return None
 
 
 def repair_spikes(path: Path, data: dict[str, np.ndarray], lines: np.ndarray,
                   names: Mapping[str, str]) -> list[InputNotice]:
-    """Replace one-row spikes of the IMU and attitude columns by the mean of their neighbours, in place.
+    """Replace spikes of the IMU and attitude columns (one row or runs of up to :data:`SPIKE_RUN` rows,
+    :func:`find_spikes`) by the straight line between their neighbours, in place.
 
     One notice per column names every repaired line and the largest excursion.
     """
@@ -147,20 +173,26 @@ def repair_spikes(path: Path, data: dict[str, np.ndarray], lines: np.ndarray,
         if values is None:
             continue
         wrap = 360.0 if role in _ANGLES else None
-        rows = find_spikes(values, floor, wrap)
-        if not len(rows):
+        runs = find_spikes(values, floor, wrap)
+        if not runs:
             continue
-        before, after = values[rows - 1], values[rows + 1]
-        half = (after - before) / 2.0
-        if wrap is not None:
-            half = ((after - before + 180.0) % 360.0 - 180.0) / 2.0
-        excursion = float(np.max(np.abs(values[rows] - (before + half))))
         repaired = values.copy()
-        repaired[rows] = before + half
+        excursion = 0.0
+        rows: list[int] = []
+        for first, last in runs:
+            span = values[last + 1] - values[first - 1]
+            if wrap is not None:
+                span = (span + 180.0) % 360.0 - 180.0
+            line = values[first - 1] + span * np.arange(1, last - first + 2) / (last - first + 2)
+            excursion = max(excursion, float(np.max(np.abs(values[first:last + 1] - line))))
+            repaired[first:last + 1] = line
+            rows.extend(range(first, last + 1))
         data[role] = repaired
-        notices.append(InputNotice(path, lines[rows].tolist(), names.get(role, role),
-                                   f"{len(rows)} one-row spike(s) repaired (up to {excursion:.4g} {_UNITS[role]} away "
-                                   "from both neighbours; replaced by their mean)"))
+        longest = max(last - first + 1 for first, last in runs)
+        notices.append(InputNotice(path, lines[np.asarray(rows)].tolist(), names.get(role, role),
+                                   f"{len(runs)} spike(s) of up to {longest} row(s) repaired (up to {excursion:.4g} "
+                                   f"{_UNITS[role]} away from the rows either side; replaced by the straight line "
+                                   "between them)"))
     return notices
 
 

@@ -137,7 +137,7 @@ def read_pos(
     :class:`InputError` on line 1. Header names are matched ignoring case. Exact duplicate rows are dropped
     with a notice; a time that goes backwards (other than across midnight), a repeated time with different
     values or a time jump over consecutive records is an error. Values outside the plausibility limits are
-    errors and one-row spikes are repaired with a notice (:mod:`georef.io.plausibility`); GNSS fixes that jump
+    errors and short spikes are repaired with a notice (:mod:`georef.io.plausibility`); GNSS fixes that jump
     faster than any aircraft are dropped (one) or an error (lasting).
     """
     path = Path(path)
