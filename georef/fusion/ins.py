@@ -769,6 +769,14 @@ def _navigation_prior(cfg: InsSettings, alignment: Alignment) -> np.ndarray:
     return P
 
 
+def _heading_capped(alignment: Alignment) -> bool:
+    """Whether :func:`_navigation_prior` capped the start heading's sigma at START_HEADING_SIGMA_MAX below what the
+    alignment's fit knows (a heading the window's motion showed only later, carried back through a gyro bias)."""
+    if alignment.prior_covariance or alignment.heading_prior_sigma is not None:
+        return False
+    return bool(4.0 * alignment.covariance[layout.ATT + 2, layout.ATT + 2] > START_HEADING_SIGMA_MAX**2)
+
+
 def _initial_state(inputs: InsInputs, cfg: InsSettings, alignment: Alignment, noise: NoiseModel,
                    calibrate: bool, lever: np.ndarray, latency: float) -> tuple[np.ndarray, np.ndarray]:
     """Nominal state (NS,) and covariance (nx, nx) at the alignment's start row."""
@@ -922,6 +930,13 @@ def _run_pass(inputs: InsInputs, cfg: InsSettings, alignment: Alignment, noise: 
         x0[layout.X_LEVER:layout.X_LEVER + 3] = lever
         x0[layout.X_LATENCY] = latency
         prior_error = state_error(x0, x_prior, nx)
+        if _heading_capped(alignment) and abs(prior_error[layout.ATT + 2]) > 2.0 * START_HEADING_SIGMA_MAX:
+            # the start heading's sigma was capped below what the fit knows, and the passes moved the heading
+            # beyond twice the cap: the alignment's start is no prior to hold them to (a phone IMU's fit 96 deg off
+            # with 94 deg of sigma at the start ended 21.9 deg off held to it, 1.8 deg not). The pass then takes
+            # the earlier pass's smoothed start as its prior mean, all states together (the heading alone let a
+            # consumer IMU's flight run off to 104 deg)
+            prior_error[:] = 0.0
     diverged = False
     start_row = alignment.start_row
     max_rejects = MAX_CONSECUTIVE_REJECTS
