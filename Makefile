@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 # trusting a list of files here that could drift from the imports.
 KERNELS := $(VENV)/.kernels
 
-.PHONY: demo test lint bench clean browser geoid FORCE
+.PHONY: demo test lint bench clean browser geoid tools FORCE
 
 # pip byte-compiles the dependencies on one core (50 of the 80 s the install takes on a 2-core machine, measured
 # 2026-11-26); compileall does it on every core (29 s). Skipping it is slower still where PYTHONDONTWRITEBYTECODE
@@ -44,7 +44,15 @@ geoid:
 	  { (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq proj-data) \
 	    >/dev/null 2>&1 || echo "could not install proj-data: the height and KML tests will fail, naming the grid"; }
 
-test: $(KERNELS) browser geoid
+# The hand-off tests read the image copies back with exiftool (Debian libimage-exiftool-perl), the consumers'
+# own reader of the tags. The committed .pos fixtures were made with Debian rtklib's rnx2rtkp
+# (tests/data/rtklib/README.md); only their rebuild needs it.
+tools:
+	@command -v exiftool >/dev/null 2>&1 || \
+	  { (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libimage-exiftool-perl) \
+	    >/dev/null 2>&1 || echo "could not install exiftool: the image hand-off tests will fail, naming it"; }
+
+test: $(KERNELS) browser geoid tools
 	$(BIN)/ruff check georef cli tests benchmarks examples
 	$(BIN)/python -m pytest -q -n auto --dist worksteal --durations=15
 
