@@ -92,6 +92,9 @@ class GnssEpochs:
     notices: list[InputNotice] = field(default_factory=list)
     #: per-fix 1-sigma north/east/up [m] when the source gives them (generic gnss.csv), else None
     sigma_neu: np.ndarray | None = None
+    #: per-fix full position covariance (K, 3, 3) [m^2] in NED (north, east, down) when the source gives its cross
+    #: terms (an RTKLIB .pos, a NavSatFix), else None; ``sigma_neu`` then holds the roots of its diagonal
+    cov_ned: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.time)
@@ -100,8 +103,9 @@ class GnssEpochs:
         """A copy without the fixes where the boolean mask ``drop`` is True (notices kept)."""
         keep = ~np.asarray(drop, dtype=bool)
         sigma = None if self.sigma_neu is None else self.sigma_neu[keep]
+        cov = None if self.cov_ned is None else self.cov_ned[keep]
         return GnssEpochs(self.time[keep], self.lat_deg[keep], self.lon_deg[keep], self.height[keep], self.line[keep],
-                          self.repeated[keep], list(self.notices), sigma)
+                          self.repeated[keep], list(self.notices), sigma, cov)
 
     def gaps(self, nominal_period: float = 1.0) -> list[tuple[float, float]]:
         """Intervals [s] longer than 1.5 nominal periods between consecutive fixes (GNSS outages)."""

@@ -550,6 +550,10 @@ def _heading_advice(kind: str) -> str:
     if kind.startswith("imu.csv"):
         return ("Add the magnetometer (imu.csv mag_x..z, with --magnetic-declination) or the autopilot's yaw "
                 "(imu.csv yaw), or include turns or accelerations in the log.")
+    if kind.startswith("ROS"):
+        return ("Include turns or accelerations (a change of speed of a few m/s) in the recording: georef reads "
+                "no magnetometer or IMU orientation from a bag; or convert the bag to imu.csv with mag_x..z "
+                "(docs/rosbags.md).")
     return ("Give the heading another way: the POS unit's own yaw with IACC (POS.txt), or include turns or "
             "accelerations in the log.")
 

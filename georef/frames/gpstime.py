@@ -73,3 +73,65 @@ def leap_seconds_note(posix_seconds: float) -> str | None:
         return None
     return (f"the log is from {day.isoformat()}, after the leap-second table's last check "
             f"({LEAP_TABLE_VALID_UNTIL.isoformat()}); GPS - UTC taken as {int(_LEAPS[-1])} s")
+
+
+#: UTC midnights of the table's dates on the UTC scale [s since the GPS epoch, leap seconds not counted]
+_STEPS_UTC = np.array([_gps_seconds_of(day) for day, _ in LEAP_SECONDS])
+
+
+def gps_minus_utc_at_utc(posix_seconds: np.ndarray | float) -> np.ndarray:
+    """GPS - UTC [s] at UTC times given as POSIX seconds (the table looked up by the UTC date)."""
+    utc_scale = np.asarray(posix_seconds, dtype=float) - GPS_EPOCH.timestamp()
+    index = np.searchsorted(_STEPS_UTC, utc_scale, side="right") - 1
+    return np.where(index >= 0, _LEAPS[np.maximum(index, 0)], 0.0)
+
+
+def utc_to_gps_seconds(posix_seconds: np.ndarray | float) -> np.ndarray:
+    """GPS seconds since the GPS epoch [s] of UTC times given as POSIX seconds: ``GPS = UTC + leap(UTC)``."""
+    posix = np.asarray(posix_seconds, dtype=float)
+    return posix - GPS_EPOCH.timestamp() + gps_minus_utc_at_utc(posix)
+
+
+def gps_week_of(gps_seconds: float) -> int:
+    """The full GPS week number (not modulo 1024) holding ``gps_seconds`` [s since the GPS epoch]."""
+    return int(np.floor(gps_seconds / SECONDS_PER_WEEK))
+
+
+def utc_of_day_to_gps_week(day_start_posix: float, utc_of_day: np.ndarray) -> tuple[int, np.ndarray]:
+    """GPS week and seconds of that week [s] of UTC times given as seconds ``utc_of_day`` since the UTC midnight
+    ``day_start_posix`` [POSIX s] (georef's time scale, continuous across midnight).
+
+    The week is that of the first time, and later times count on from it: a flight that crosses the Saturday/Sunday
+    midnight of GPS time goes on past 604800 s instead of jumping back to 0, so the times stay increasing (what
+    SBET consumers sort and interpolate by). The whole seconds are added apart from the time of day, so the result
+    keeps the time of day's resolution (a POSIX time in float64 holds only 0.2 us)."""
+    t = np.asarray(utc_of_day, dtype=float)
+    leap = gps_minus_utc_at_utc(day_start_posix + t)
+    day_gps = float(round(day_start_posix - GPS_EPOCH.timestamp()))  # whole seconds: the day starts at 00:00:00
+    week = gps_week_of(day_gps + float(t[0]) + float(leap[0]))
+    return week, (day_gps - week * SECONDS_PER_WEEK) + leap + t
+
+
+#: Japan Standard Time, one of RTKLIB's output time systems (``out-timesys=jst``): UTC + 9 h, no daylight saving
+JST_MINUS_UTC = 9 * 3600.0
+
+
+#: the time scales a solution with absolute times can be put on: UTC seconds of a day, GPS seconds of a week,
+#: UTC seconds since 1970 (POSIX)
+TIME_SCALES = ("utc-day", "gps-week", "utc-posix")
+
+
+def solution_times(utc: np.ndarray, scale: str = "utc-day", reference_utc: float | None = None) -> np.ndarray:
+    """UTC times [POSIX s] on a scale of :data:`TIME_SCALES`, counted from the day (or GPS week) of
+    ``reference_utc`` (default: the first time)."""
+    if scale not in TIME_SCALES:
+        raise ValueError(f"time scale must be one of {', '.join(TIME_SCALES)}, got {scale!r}")
+    utc = np.asarray(utc, dtype=float)
+    reference = float(utc[0]) if reference_utc is None else float(reference_utc)
+    if scale == "utc-posix":
+        return utc.copy()
+    if scale == "utc-day":
+        return utc - utc_day_start(reference)
+    gps = utc_to_gps_seconds(utc)
+    week = np.floor(float(utc_to_gps_seconds(reference)) / SECONDS_PER_WEEK)
+    return gps - week * SECONDS_PER_WEEK

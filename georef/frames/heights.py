@@ -214,3 +214,23 @@ class OutputFrames:
         if self._height_transformer is not None:
             out.append(_transformation("WGS 84 ellipsoidal height -> " + self.height_name, self._height_transformer))
         return out
+
+
+def ellipsoidal_from_orthometric(lat_deg: ArrayLike, lon_deg: ArrayLike, height_m: ArrayLike,
+                                 vertical_crs: str = EGM96_HEIGHT) -> tuple[Array, Transformation]:
+    """WGS 84 ellipsoidal heights [m] of heights above the geoid of ``vertical_crs`` (``h = H + N``), and the PROJ
+    transformation that did it. Raises :class:`GeoidGridError` when its grid is not installed (never a ballpark)."""
+    _add_grid_directories()
+    vertical = _parse(vertical_crs)
+    if not vertical.is_vertical:
+        raise CRSChoiceError(f"{vertical_crs!r} ({vertical.name}) is not a vertical CRS")
+    source = CompoundCRS(name=f"WGS 84 + {vertical.name}", components=[CRS.from_epsg(4326), vertical])
+    try:
+        transformer = Transformer.from_crs(source, WGS84_3D, always_xy=True, allow_ballpark=False, only_best=True)
+    except ProjError as exc:
+        raise GeoidGridError(
+            f"cannot compute WGS 84 ellipsoidal heights from {vertical.name}: {exc}. Install its grid into a PROJ "
+            f"data directory (searched: {', '.join(_add_grid_directories())}); Debian's proj-data ships EGM96 "
+            f"(egm96_15.gtx, vertical CRS {EGM96_HEIGHT})") from exc
+    h = OutputFrames._transform_height(transformer, lat_deg, lon_deg, np.asarray(height_m, float))
+    return h, _transformation(f"{vertical.name} -> WGS 84 ellipsoidal height", transformer)

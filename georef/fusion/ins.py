@@ -254,6 +254,7 @@ class _Fixes:
     lag: np.ndarray      # t[row] - t_fix [s]
     z: np.ndarray        # lat, lon [rad], h [m]
     r: np.ndarray        # NED variances [m^2]
+    rho: np.ndarray      # correlation coefficients north-east, north-down, east-down (zeros: independent axes)
     index: np.ndarray    # index into the GnssEpochs
 
 
@@ -290,7 +291,18 @@ def _fix_table(inputs: InsInputs, cfg: InsSettings, start_row: int) -> _Fixes:
     row = np.searchsorted(t, gnss.time[use], side="left")
     z = np.stack([np.radians(gnss.lat_deg[use]), np.radians(gnss.lon_deg[use]), gnss.height[use]], -1)
     sigma = _fix_sigmas(gnss, cfg)[use]
-    return _Fixes(row=row, lag=t[row] - gnss.time[use], z=z, r=sigma**2, index=use)
+    return _Fixes(row=row, lag=t[row] - gnss.time[use], z=z, r=sigma**2, rho=_fix_correlations(gnss)[use], index=use)
+
+
+def _fix_correlations(gnss: GnssEpochs) -> np.ndarray:
+    """(K, 3) correlation coefficients north-east, north-down, east-down of every fix's NED covariance when the
+    source gives one (``cov_ned``: an RTKLIB .pos, a NavSatFix), else zeros; zeros where it is not finite."""
+    if gnss.cov_ned is None:
+        return np.zeros((len(gnss), 3))
+    from georef.frames.position_covariance import correlations
+
+    rho = correlations(gnss.cov_ned)
+    return np.where(np.isfinite(rho), np.clip(rho, -1.0, 1.0), 0.0)
 
 
 def _fix_sigmas(gnss: GnssEpochs, cfg: InsSettings) -> np.ndarray:
@@ -950,7 +962,7 @@ def _run_pass(inputs: InsInputs, cfg: InsSettings, alignment: Alignment, noise: 
     offset = 0
     while True:
         out = kernel.ekf_forward(t, inputs.gyro, inputs.accel, start_row, x0, P0, fixes.row, fixes.lag, fixes.z,
-                                 fixes.r, noise_vec, q_scale, stride, gate, max_rejects, imu_gap_limit(t),
+                                 fixes.r, fixes.rho, noise_vec, q_scale, stride, gate, max_rejects, imu_gap_limit(t),
                                  OUTAGE_S, unit_rpy, aiding, nhc, still, nav)
         (ep_row, ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, f_epoch, f_z, f_H, f_S, f_d2, f_status, a_epoch, a_kind, a_z,
          a_H, a_status, a_r, stop, ep_loglik) = out
@@ -1236,7 +1248,7 @@ def held_out_check(inputs: InsInputs, cfg: InsSettings, alignment: Alignment, no
     if held.sum() < HELD_MIN:
         return None
     subset = _Fixes(row=fixes.row[kept], lag=fixes.lag[kept], z=fixes.z[kept], r=fixes.r[kept],
-                    index=fixes.index[kept])
+                    rho=fixes.rho[kept], index=fixes.index[kept])
     run = _run_pass(inputs, cfg, alignment, noise, subset, stride, cfg.gnss_gate.chi2, calibrate=False,
                     smooth=smooth, want_stats=False, lever=lever, latency=latency, start_state=start_state,
                     rows_wanted=True, restart_on_divergence=False, nhc=nhc)
@@ -1360,7 +1372,7 @@ class _Estimation:
                          gaps=[(a, b) for a, b in inputs.gaps if b < last],
                          still=None if inputs.still is None else inputs.still[:last])
         subset = _Fixes(row=fixes.row[kept], lag=fixes.lag[kept], z=fixes.z[kept], r=fixes.r[kept],
-                        index=fixes.index[kept])
+                        rho=fixes.rho[kept], index=fixes.index[kept])
         self.passes += 1
         run = _run_pass(span, self.cfg, self.alignment, noise, subset, self.stride, self.gate,
                         calibrate=False, smooth=True, want_stats=False, lever=self.lever, latency=self.latency,
@@ -1567,9 +1579,16 @@ def solve_ins(inputs: InsInputs, cfg: InsSettings | ProcessingConfig, smooth: bo
     inputs.time = t
     inputs.gaps = imu_gaps(t, inputs.gyro, inputs.accel)
     gnss = inputs.gnss
-    if np.count_nonzero((gnss.time >= t[0]) & (gnss.time <= t[-1])) < 6:
+    inside = np.count_nonzero((gnss.time >= t[0]) & (gnss.time <= t[-1]))
+    if inside < 6:
+        # both spans, so that fixes on another clock than the IMU's (UTC seconds of day against GPS seconds of
+        # week or Unix seconds) show as such
+        fixes = (f"{len(gnss)} GNSS fixes span {gnss.time.min():.3f} - {gnss.time.max():.3f} s" if len(gnss)
+                 else "there are no GNSS fixes")
         raise GeorefError(f"{inputs.source}: the full-state filter needs at least six GNSS fixes inside the IMU span "
-                          f"({t[0]:.1f} - {t[-1]:.1f} s)")
+                          f"({t[0]:.3f} - {t[-1]:.3f} s); {fixes}, {inside} of them inside. The IMU's and the "
+                          "GNSS's times must be on one clock (UTC seconds of the day, GPS seconds of the week or Unix "
+                          "seconds): an RTKLIB .pos is put on the IMU's with --time-scale (docs/rtklib.md)")
     inputs.still = still_rows(t, inputs.gyro, inputs.accel, gnss.time, _fix_ned(gnss))
     rate = 1.0 / float(np.median(np.diff(t)))
     lever = np.asarray(cfg.lever_arm_gnss, dtype=float)

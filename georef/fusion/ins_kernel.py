@@ -489,6 +489,22 @@ def innovation_covariance(P: np.ndarray, H: np.ndarray, r: np.ndarray) -> np.nda
 
 
 @njit(cache=True)
+def add_fix_correlation(S: np.ndarray, r: np.ndarray, rho: np.ndarray) -> None:
+    """Add a fix's correlated noise to the innovation covariance ``S`` (3, 3) that holds its variances ``r`` (3,)
+    [m^2, NED] on the diagonal: ``R = D^1/2 C D^1/2`` with ``D = diag(r)`` and the correlation coefficients
+    ``rho`` = (north-east, north-down, east-down) off the diagonal (zeros: a diagonal R, S unchanged)."""
+    ne = rho[0] * math.sqrt(r[0] * r[1])
+    nd = rho[1] * math.sqrt(r[0] * r[2])
+    ed = rho[2] * math.sqrt(r[1] * r[2])
+    S[0, 1] += ne
+    S[1, 0] += ne
+    S[0, 2] += nd
+    S[2, 0] += nd
+    S[1, 2] += ed
+    S[2, 1] += ed
+
+
+@njit(cache=True)
 def aux_update(x, P, P_next, z, H, r, gate, C, dx_total, work, n_ep, kind, n_aux, aux_epoch, aux_kind, aux_z, aux_H,
                aux_status, aux_r):
     """Record an auxiliary update (ZUPT, ZARU, the unit's attitude: 3 rows, diagonal noise ``r``) in slot
@@ -512,14 +528,16 @@ def aux_update(x, P, P_next, z, H, r, gate, C, dx_total, work, n_ep, kind, n_aux
 
 
 @njit(cache=True)
-def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fix, noise, q_scale, stride,
+def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fix, rho_fix, noise, q_scale, stride,
                 gate_chi2, max_rejects, max_gap, outage_s, unit_rpy, unit_aiding, nhc, still, nav):
     """One segment of the forward error-state EKF, from ``start_row`` until the end or a divergence.
 
     Inputs: row times ``t`` (N,) s; ``gyro`` rad/s and ``accel`` m/s^2 (N, 3) body frame; the start row, its
     nominal state ``x0`` (NS,) and covariance ``P0`` (nx, nx) with nx = NX_NAV or NX_CAL; per GNSS fix: the row
     at or after it ``fix_row``, ``fix_lag`` = t[row] - t_fix [s], antenna ``z_fix`` (lat, lon [rad], h [m]) and
-    NED variances ``r_fix`` [m^2] (before the R_SCALE factors); the noise vector (N_NOISE,); factors on the
+    NED variances ``r_fix`` [m^2] (before the R_SCALE factors) and correlation coefficients ``rho_fix`` (M, 3):
+    north-east, north-down, east-down (zeros: independent axes; R = D^1/2 C D^1/2 with D the scaled
+    variances, so the R_SCALE factors keep the correlations); the noise vector (N_NOISE,); factors on the
     process noise of the interval ending at each row ``q_scale`` (N, 2): on the white specific force and angular
     rate, and on the bias and unit-error drives; covariance epochs every ``stride`` rows; the chi-square gate;
     ``max_rejects`` consecutive rejected fixes stop the segment (0: never), and so do DRIFT_REJECTS of them
@@ -738,6 +756,7 @@ def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fi
                 z, H = gnss_innovation(x, C, z_fix[k_fix], fix_lag[k_fix], nx)
                 r = r_fix[k_fix] * r_scale
                 S = innovation_covariance(P, H, r)
+                add_fix_correlation(S, r, rho_fix[k_fix])
                 S_inv = np.linalg.inv(S)
                 d2 = z @ S_inv @ z
                 fix_epoch[k_fix] = n_ep
@@ -959,6 +978,8 @@ def rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, ep_outage, noise
             H = fix_H[k]
             e = fix_z[k] - H @ err_pre[j]
             cov = H @ ep_Pp[j] @ H.T
+            # per axis even for a fix with correlated axes (ekf_forward's rho_fix): E[e_i^2 + cov_ii] = s r_i holds
+            # whatever the correlations, so the scale s stays a moment estimate, not the exact M-step of R(s)
             r = r_fix[k] * r_scale
             _measurement_statistic(e, cov, r, 0, 2, stats, B_GNSS_H)
             _measurement_statistic(e, cov, r, 2, 3, stats, B_GNSS_V)

@@ -22,7 +22,12 @@ EVENT_COLUMNS = ("time", "image", "frame")
 
 
 def read_events(path: Path | str) -> tuple[Exposures, ImageNames | None]:
-    """The exposures of ``events.csv`` and, when it names them, their image files."""
+    """The exposures of ``events.csv`` and, when it names them, their image files; an Emlid/RTKLIB demo5
+    ``_events.pos``, recognised by its content, is read by :func:`georef.io.rtklib.read_rtklib_events`."""
+    from georef.io.rtklib import is_rtklib_pos, read_rtklib_events
+
+    if is_rtklib_pos(path):
+        return read_rtklib_events(path)
     table = read_table(path, {"time": "float", "image": "str", "frame": "str", "time_sigma": "float"},
                        required={"time"}, short_rows="keep")
     c = table.columns

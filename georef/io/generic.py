@@ -90,11 +90,13 @@ def read_marg_csv(path: Path | str) -> tuple[np.ndarray, np.ndarray, np.ndarray,
     return c["time"], gyro, accel, mag, table.lines
 
 
-def read_generic_log(imu_path: Path | str, gnss_path: Path | str) -> PosLog:
+def read_generic_log(imu_path: Path | str, gnss_path: Path | str, time_scale: str = "auto") -> PosLog:
     """``imu.csv`` and ``gnss.csv`` as the pipeline's typed input (:class:`~georef.io.pos.PosLog`; ``data`` in
     POS.txt's units, deg/s and m/s^2), with the magnetometer and the autopilot's roll, pitch, yaw on the rows when
-    imu.csv has them. imu.csv is read once."""
+    imu.csv has them. imu.csv is read once. An RTKLIB/Emlid .pos as ``gnss_path`` is put on imu.csv's time scale:
+    ``time_scale`` (:data:`georef.io.pos_time_scale.CHOICES`; ``auto`` detects it from imu.csv's span)."""
     from georef.align import TimeRepairReport
+    from georef.io.pos_time_scale import is_solution_file, read_gnss_on_imu_scale
 
     table = _imu_table(imu_path, (*IMU_COLUMNS, *MAG_COLUMNS, "roll", "pitch", AUTOPILOT_YAW))
     c = table.columns
@@ -110,14 +112,20 @@ def read_generic_log(imu_path: Path | str, gnss_path: Path | str) -> PosLog:
     data = {f"gyro_{a}": np.degrees(c[f"gyro_{a}"]) for a in "xyz"}
     data.update({f"acc_{a}": c[f"acc_{a}"] for a in "xyz"})
     names = {role: table.names.get(role, role) for role in data}
-    fixes = read_gnss_csv(gnss_path)
+    fixes = read_gnss_on_imu_scale(gnss_path, c["time"], time_scale, Path(imu_path).name)
+    kind = "imu.csv + RTKLIB .pos" if is_solution_file(gnss_path) else "imu.csv + gnss.csv"
     return PosLog(path=table.path, time=c["time"], data=data, lines=table.lines, gnss=fixes,
                   time_repairs=TimeRepairReport(), notices=[*table.notices, *fixes.notices], column_names=names,
-                  kind="imu.csv + gnss.csv", mag=mag, autopilot_rpy=rpy)
+                  kind=kind, mag=mag, autopilot_rpy=rpy)
 
 
 def read_gnss_csv(path: Path | str) -> GnssEpochs:
-    """``gnss.csv`` -> GNSS antenna fixes (optional per-fix sigmas)."""
+    """``gnss.csv`` -> GNSS antenna fixes (optional per-fix sigmas); an RTKLIB/Emlid ``.pos`` solution, recognised
+    by its content (:func:`georef.io.rtklib.is_rtklib_pos`), is read by :func:`georef.io.rtklib.read_rtklib_gnss`."""
+    from georef.io.rtklib import is_rtklib_pos, read_rtklib_gnss
+
+    if is_rtklib_pos(path):
+        return read_rtklib_gnss(path)
     wanted = dict.fromkeys((*GNSS_COLUMNS, "sigma_n", "sigma_e", "sigma_u"), "float")
     table = read_table(path, wanted, required=set(GNSS_COLUMNS))
     c = table.columns
@@ -159,6 +167,8 @@ def trajectory_table(nav: NavSolution) -> pd.DataFrame:
 def write_trajectory_csv(nav: NavSolution, path: Path | str) -> Path:
     """Write ``traj.csv`` atomically."""
     table = trajectory_table(nav)
+    # time to the microsecond: %.10g keeps only the whole seconds of a Unix time (a ROS bag's stamps, 1.8e9 s)
+    table["time"] = np.char.mod("%.6f", table["time"].to_numpy())
     with atomic_write(path) as handle:
         table.to_csv(handle, index=False, float_format="%.10g", lineterminator="\n")
     return Path(path)

@@ -1,0 +1,618 @@
+"""RTKLIB / Emlid Studio position solutions (``.pos``) as GNSS fixes, and ``_events.pos`` as exposures.
+
+The format is RTKLIB's solution text (``outsolheads``/``outsols`` in its ``src/solution.c``), which rnx2rtkp, RTKPOST,
+the demo5 fork and Emlid Studio write: ``%`` header lines, then one line per epoch::
+
+    % ref pos   : 35.132066140  139.624302130    75.8027
+    % (lat/lon/height=WGS84/ellipsoidal,Q=1:fix,2:float,3:sbas,4:dgps,5:single,6:ppp,ns=# of satellites)
+    %  GPST                  latitude(deg) longitude(deg)  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)  sdne(m) ...
+    2005/04/02 00:00:00.000   35.160875058  139.613838572    70.2698   1   5   0.0143   0.0052   0.0160   0.0045 ...
+
+What the header says, and what georef does with it (``docs/rtklib.md``):
+
+* time system ``GPST``, ``UTC`` or ``JST`` (the column header's first name) and format (``yyyy/mm/dd hh:mm:ss.s``
+  or GPS week + seconds; both two fields): converted to UTC with the leap seconds of
+  :mod:`georef.frames.gpstime`, then to the scale asked for (:data:`georef.frames.gpstime.TIME_SCALES`);
+* positions ``lat/lon/height`` (degrees, or ``d m s`` with ``-g``), ``x/y/z-ecef`` or ``e/n/u-baseline`` from the
+  ``% ref pos`` base; heights ``ellipsoidal`` or ``geodetic`` (above a geoid: converted with PROJ's grid for
+  ``geoid``, EGM96 by default; the geoid RTKLIB used is not in the file);
+* the six ``sd`` columns: three standard deviations and three *signed* roots of covariances, in the frame of the
+  positions (ENU at the base for baselines, ECEF for x/y/z): the NED covariance of each fix
+  (:mod:`georef.frames.position_covariance`), with a floor per solution quality ``Q`` (:data:`SIGMA_FLOORS`).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import re
+import stat
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from georef.align import GnssEpochs, check_increasing
+from georef.frames.earth import ecef_to_geodetic
+from georef.frames.gpstime import (
+    GPS_EPOCH,
+    JST_MINUS_UTC,
+    SECONDS_PER_DAY,
+    SECONDS_PER_WEEK,
+    gps_minus_utc,
+    gps_week_to_utc,
+    leap_seconds_note,
+    solution_times,
+    utc_to_gps_seconds,
+)
+from georef.frames.heights import EGM96_HEIGHT, ellipsoidal_from_orthometric
+from georef.frames.position_covariance import (
+    covariance_from_signed_roots,
+    ecef_to_ned_covariance,
+    enu_at_base_to_ned_covariance,
+    enu_baseline_to_ecef,
+    neu_to_ned_covariance,
+    with_sigma_floor,
+)
+from georef.io.errors import InputError, InputNotice, excerpt
+
+if TYPE_CHECKING:
+    from georef.io.camera import Exposures
+
+#: the time scales a solution's times can be put on (the IMU's scale must be the same):
+#: ``utc-day`` UTC seconds from 00:00 UTC of the first solution's day (going on past 86400 s), georef's scale for
+#: POS.txt, Kamera.txt and autopilot logs; ``gps-week`` GPS seconds from the start of the first solution's GPS week
+#: (going on past 604800 s); ``utc-posix`` UTC seconds since 1970-01-01
+
+#: RTKLIB's solution qualities (``SOLQ_*`` of rtklib.h; 7, dead reckoning, is the demo5 fork's)
+QUALITY_NAMES: dict[int, str] = {1: "fix", 2: "float", 3: "SBAS", 4: "DGPS", 5: "single", 6: "PPP",
+                                 7: "dead reckoning"}
+#: carrier-phase solutions: relative fix and float, and PPP
+CARRIER_QUALITIES = (1, 2, 6)
+#: code-only solutions
+CODE_QUALITIES = (3, 4, 5)
+
+#: smallest 1-sigma north, east, up [m] a fix of each quality is given. RTKLIB's sd columns are the filter's
+#: formal covariance, which leaves out multipath, antenna phase centre and base coordinate errors and is
+#: optimistic (millimetres for a fix). The floors are typical achieved accuracies: an RTK fix 1 cm + 1 ppm
+#: horizontal, twice that vertical (receiver data sheets, e.g. u-blox ZED-F9P, Emlid Reach RS2), taken at 10 km;
+#: a float solution decimetres; DGPS and SBAS sub-metre to metre (SBAS: WAAS performance standard, ICAO Annex 10);
+#: a single-point solution the GPS SPS performance standard's few metres; converged kinematic PPP a decimetre.
+SIGMA_FLOORS: dict[int, tuple[float, float, float]] = {
+    1: (0.02, 0.02, 0.04), 2: (0.30, 0.30, 0.60), 3: (1.0, 1.0, 1.5), 4: (0.5, 0.5, 1.0), 5: (2.5, 2.5, 5.0),
+    6: (0.10, 0.10, 0.20), 7: (10.0, 10.0, 15.0),
+}
+
+#: column name (lower case) -> how many whitespace-separated fields it spans in a data line
+_DMS_LAT, _DMS_LON = "latitude(d'\")", "longitude(d'\")"
+_FIELDS = {_DMS_LAT: 3, _DMS_LON: 3}
+_TIME_SYSTEMS = ("GPST", "UTC", "JST")
+#: the columns every layout has after its three position columns
+_COMMON = ("q", "ns")
+#: layout -> its position columns and its six sd columns, as RTKLIB 2.4.3's outsolheads names them
+_LAYOUTS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "llh-deg": (("latitude(deg)", "longitude(deg)", "height(m)"),
+                ("sdn(m)", "sde(m)", "sdu(m)", "sdne(m)", "sdeu(m)", "sdun(m)")),
+    # RTKLIB labels the sixth sd column of the d m s layout "sdue(m)"; outpos writes the north-up term there too
+    "llh-dms": ((_DMS_LAT, _DMS_LON, "height(m)"), ("sdn(m)", "sde(m)", "sdu(m)", "sdne(m)", "sdeu(m)", "sdue(m)")),
+    "xyz": (("x-ecef(m)", "y-ecef(m)", "z-ecef(m)"), ("sdx(m)", "sdy(m)", "sdz(m)", "sdxy(m)", "sdyz(m)", "sdzx(m)")),
+    "enu": (("e-baseline(m)", "n-baseline(m)", "u-baseline(m)"),
+            ("sde(m)", "sdn(m)", "sdu(m)", "sden(m)", "sdnu(m)", "sdue(m)")),
+}
+#: columns after the sd columns that georef knows and reads
+_KNOWN_TAIL = ("age(s)", "ratio")
+_FORMAT_LINE = re.compile(r"\((?:lat/lon/height=(?P<datum>[^/,]+)/(?P<height>[^,]+)|x/y/z-ecef=(?P<xyz>[^,]+)|"
+                          r"e/n/u-baseline=(?P<enu>[^,]+)),Q=")
+#: separators rnx2rtkp's ``-s`` may set that georef splits on besides blanks
+_SEPARATORS = (",", ";", "\t", "|")
+#: what marks demo5's line for a camera event without a solution (lower case)
+_INVALID_MARK = "time mark is not valid"
+#: how much of a file :func:`is_rtklib_pos` looks at [bytes]
+_SNIFF_BYTES = 16384
+
+
+@dataclass
+class PosHeader:
+    """What a .pos header says. ``layout``: a key of the layouts (llh-deg, llh-dms, xyz, enu); ``height``:
+    ``ellipsoidal`` or ``geodetic``; ``base``: the ``% ref pos`` (lat, lon [rad], ellipsoidal height [m]) or None;
+    ``columns``: the column header's names (lower case) after the time; lines are 1-based file lines."""
+
+    time_system: str
+    layout: str
+    height: str
+    columns: list[str]
+    column_line: int
+    separator: str | None
+    program: str | None = None
+    base: tuple[float, float, float] | None = None
+    base_line: int | None = None
+    format_line: int | None = None
+
+
+@dataclass
+class PosSolution:
+    """The epochs of a .pos file: UTC [POSIX s], WGS 84 latitude, longitude [deg], ellipsoidal height [m], quality
+    ``Q``, satellites, NED covariance (K, 3, 3) [m^2] as the file gives it (no floor), age [s], ratio, file line."""
+
+    path: Path
+    header: PosHeader
+    utc: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    height: np.ndarray
+    quality: np.ndarray
+    n_sat: np.ndarray
+    cov_ned: np.ndarray
+    age: np.ndarray
+    ratio: np.ndarray
+    line: np.ndarray
+    notices: list[InputNotice] = field(default_factory=list)
+    #: an event file's time marks without a solution (demo5's "Q=0, Time mark is not valid" lines): UTC [POSIX s]
+    #: and file lines
+    invalid_mark_utc: np.ndarray = field(default_factory=lambda: np.empty(0))
+    invalid_mark_line: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
+
+    def __len__(self) -> int:
+        return len(self.utc)
+
+
+def is_rtklib_pos(path: Path | str) -> bool:
+    """Whether ``path`` is an RTKLIB solution file, by its content: a ``% program :`` line naming RTKLIB (or
+    rnx2rtkp, RTKPOST, Emlid), or a ``%`` column header naming a time system and RTKLIB's position columns. A pipe
+    or a missing file is not looked into (False)."""
+    try:
+        if not stat.S_ISREG(Path(path).stat().st_mode):
+            return False
+        with open(path, "rb") as handle:
+            head = handle.read(_SNIFF_BYTES).decode("utf-8", errors="replace")
+    except OSError:
+        return False
+    for raw in head.splitlines():
+        text = raw.strip()
+        if not text:
+            continue
+        if not text.startswith("%"):
+            return False
+        lowered = text.lower()
+        if lowered.startswith("% program") and any(name in lowered for name in ("rtklib", "rnx2rtkp", "rtkpost",
+                                                                                  "emlid")):
+            return True
+        if _column_header(text) is not None:
+            return True
+    return False
+
+
+def _column_header(text: str) -> tuple[str, list[str], str | None] | None:
+    """(time system, names after it in lower case, separator) of a column header line, else None."""
+    body = text.lstrip("%")
+    separator = next((s for s in _SEPARATORS if s in body), None)
+    names = (body.replace(separator, " ") if separator else body).split()
+    if len(names) < 4 or names[0].upper() not in _TIME_SYSTEMS:
+        return None
+    lowered = [name.lower() for name in names[1:]]
+    if not any(lowered[:3] == list(positions) for positions, _ in _LAYOUTS.values()):
+        return None
+    return names[0].upper(), lowered, separator
+
+
+def _parse_header(path: Path, lines: list[str]) -> tuple[PosHeader, int]:
+    """The header, and the index of the first data line."""
+    program = None
+    ref: tuple[int, list[str]] | None = None
+    format_match: tuple[int, re.Match[str]] | None = None
+    column: tuple[int, tuple[str, list[str], str | None]] | None = None
+    first_data = len(lines)
+    for index, raw in enumerate(lines):
+        text = raw.strip()
+        if not text:
+            continue
+        if not text.startswith("%"):
+            first_data = index
+            break
+        body = text.lstrip("%").strip()
+        if body.lower().startswith("program") and ":" in body:
+            program = body.split(":", 1)[1].strip()
+        elif body.lower().startswith("ref pos") and ":" in body:
+            ref = (index + 1, body.split(":", 1)[1].replace(",", " ").split())
+        elif (found := _FORMAT_LINE.search(body)) is not None:
+            format_match = (index + 1, found)
+        elif (parsed := _column_header(text)) is not None:
+            column = (index + 1, parsed)
+    if column is None:
+        where = first_data + 1 if first_data < len(lines) else None
+        raise InputError(path, where, None, "no RTKLIB column header line (a '%' line such as '%  GPST  "
+                         "latitude(deg) longitude(deg) height(m) Q ns sdn(m) ...') before the solutions: write the "
+                         "solution with its header (RTKLIB option out-outhead=on)")
+    column_line, (time_system, names, separator) = column
+    layout = next(key for key, (positions, _) in _LAYOUTS.items() if names[:3] == list(positions))
+    expected = [*_LAYOUTS[layout][0], *_COMMON, *_LAYOUTS[layout][1]]
+    for k, want in enumerate(expected):
+        got = names[k] if k < len(names) else None
+        alias = layout == "llh-deg" and want == "sdun(m)" and got == "sdue(m)"
+        if got != want and not alias:
+            raise InputError(path, column_line, got if got is not None else want,
+                             f"RTKLIB's {layout} layout has {want!r} as column {k + 2} (after the time), "
+                             f"found {got!r}")
+    height = "ellipsoidal"
+    if format_match is not None:
+        line, found = format_match
+        kind = "xyz" if found.group("xyz") else "enu" if found.group("enu") else "llh"
+        if kind != layout[:3]:
+            raise InputError(path, line, None, f"the header line says {kind} positions but the column header "
+                             f"(line {column_line}) has the {layout} columns")
+        datum = (found.group("datum") or found.group("xyz") or found.group("enu")).strip()
+        if datum.upper() != "WGS84":
+            raise InputError(path, line, None, f"datum {excerpt(datum)}: georef reads WGS84 solutions only (write "
+                             "the solution with out-datum=wgs84)")
+        if kind == "llh":
+            height = found.group("height").strip().lower()
+            if height not in ("ellipsoidal", "geodetic"):
+                raise InputError(path, line, None, f"height type {excerpt(height)}: RTKLIB writes ellipsoidal or "
+                                 "geodetic")
+    elif layout.startswith("llh"):
+        raise InputError(path, column_line, "height(m)", "the header does not say whether the heights are "
+                         "ellipsoidal or geodetic (its '% (lat/lon/height=WGS84/...' line is missing): write the "
+                         "solution with its header (out-outhead=on)")
+    base = None
+    base_line = None
+    if ref is not None:
+        base_line, values = ref
+        base = _parse_base(path, base_line, values)
+    header = PosHeader(time_system=time_system, layout=layout, height=height, columns=names, column_line=column_line,
+                       separator=separator, program=program, base=base, base_line=base_line,
+                       format_line=format_match[0] if format_match else None)
+    return header, first_data
+
+
+def _parse_base(path: Path, line: int, values: list[str]) -> tuple[float, float, float]:
+    """``% ref pos``: latitude, longitude [deg] and height [m, ellipsoidal], or d m s twice and height, or ECEF
+    x y z [m] -> (lat, lon [rad], ellipsoidal height [m])."""
+    try:
+        numbers = [float(v) for v in values]
+    except ValueError:
+        raise InputError(path, line, "ref pos", f"not a number in {excerpt(' '.join(values))}") from None
+    if len(numbers) == 3 and max(abs(v) for v in numbers) > 1000.0:
+        lat, lon, h = ecef_to_geodetic(np.array(numbers))
+        return float(lat), float(lon), float(h)
+    if len(numbers) == 3:
+        return float(np.radians(numbers[0])), float(np.radians(numbers[1])), numbers[2]
+    if len(numbers) == 7:
+        lat = _dms(path, line, "ref pos", values[0:3])
+        lon = _dms(path, line, "ref pos", values[3:6])
+        return float(np.radians(lat)), float(np.radians(lon)), numbers[6]
+    raise InputError(path, line, "ref pos", f"expected latitude, longitude, height (3 or 7 numbers) or ECEF x y z, "
+                     f"found {len(numbers)} numbers")
+
+
+def _dms(path: Path, line: int, column: str, parts: list[str]) -> float:
+    """Degrees of RTKLIB's ``ddd mm ss.sssss`` (the sign on the degrees, ``-0`` for -1 < value < 0)."""
+    try:
+        d, m, s = (float(p) for p in parts)
+    except ValueError:
+        raise InputError(path, line, column, f"not a number in {excerpt(' '.join(parts))}") from None
+    if not (0.0 <= m < 60.0 and 0.0 <= s < 60.0 and d == int(d)):
+        raise InputError(path, line, column, f"{excerpt(' '.join(parts))} is not degrees, minutes (0-59) and "
+                         "seconds (0-60)")
+    sign = -1.0 if parts[0].strip().startswith("-") else 1.0
+    return sign * (abs(d) + m / 60.0 + s / 3600.0)
+
+
+_EPOCH_ORDINAL = dt.date(1970, 1, 1).toordinal()
+
+
+def _clock_reading(path: Path, line: int, column: str, first: str, second: str) -> float:
+    """The time of a line as read on its own time system's calendar [s since 1970-01-01 of that calendar]:
+    ``yyyy/mm/dd hh:mm:ss.sss`` or GPS week and seconds of week (RTKLIB counts a UTC or JST time in weeks too)."""
+    try:
+        if "/" in first:
+            year, month, day = (int(v) for v in first.split("/"))
+            hour, minute, second_s = second.split(":")
+            h, m, s = int(hour), int(minute), float(second_s)
+            if not (0 <= h <= 23 and 0 <= m <= 59 and 0.0 <= s < 61.0):
+                raise ValueError
+            days = dt.date(year, month, day).toordinal() - _EPOCH_ORDINAL
+            return days * SECONDS_PER_DAY + h * 3600.0 + m * 60.0 + s
+        week, seconds = int(first), float(second)
+        if week < 0 or not 0.0 <= seconds < SECONDS_PER_WEEK + 1.0:
+            raise ValueError
+        return GPS_EPOCH.timestamp() + week * SECONDS_PER_WEEK + seconds
+    except ValueError:
+        raise InputError(path, line, column, f"{excerpt(first + ' ' + second)} is neither yyyy/mm/dd hh:mm:ss.s nor "
+                         "a GPS week and seconds of week") from None
+
+
+def read_pos_solution(path: Path | str, geoid: str = EGM96_HEIGHT) -> PosSolution:
+    """Every epoch of an RTKLIB/Emlid ``.pos`` file, in UTC and WGS 84 with NED covariances.
+
+    ``geoid``: the vertical CRS (PROJ name) of the heights when the header says ``geodetic`` (RTKLIB's own
+    default is its embedded EGM96; the file does not say which model it used). Errors name the file, line and
+    column.
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as handle:
+            raw_lines = handle.read().split(b"\n")
+    except OSError as exc:
+        raise InputError(path, None, None, f"cannot read: {exc.strerror or exc}") from None
+    lines: list[str] = []
+    for index, raw in enumerate(raw_lines):
+        try:
+            lines.append(raw.decode("utf-8").rstrip("\r"))
+        except UnicodeDecodeError:
+            raise InputError(path, index + 1, None, "not text (a byte that is not UTF-8): an RTKLIB .pos file is "
+                             "text") from None
+    header, first = _parse_header(path, lines)
+    positions, sds = _LAYOUTS[header.layout]
+    names = header.columns
+    spans = [_FIELDS.get(name, 1) for name in names]
+    offsets = np.concatenate([[2], 2 + np.cumsum(spans)])  # the time spans the first two fields
+    width = int(offsets[-1])
+    column_of = {name: (int(offsets[k]), spans[k]) for k, name in enumerate(names)}
+    unknown = [name for name in names[len(positions) + len(_COMMON) + len(sds):] if name not in _KNOWN_TAIL]
+    notices: list[InputNotice] = []
+    if unknown:
+        notices.append(InputNotice(path, [header.column_line], None, f"column(s) {', '.join(unknown)} not used"))
+    if header.layout == "enu" and header.base is None:
+        raise InputError(path, header.column_line, positions[0], "east/north/up baselines need the base position, "
+                         "and the header has no '% ref pos' line")
+    time_label = header.time_system
+    rows: list[list[float]] = []
+    readings: list[float] = []
+    line_numbers: list[int] = []
+    invalid_readings: list[float] = []
+    invalid_lines: list[int] = []
+    # the header's own names (RTKLIB's d m s layout calls the north-up term sdue), then the known tail
+    sd_names = names[len(positions) + len(_COMMON):len(positions) + len(_COMMON) + len(sds)]
+    wanted = [*names[:len(positions) + len(_COMMON)], *sd_names, *[n for n in _KNOWN_TAIL if n in column_of]]
+    last_line = max((k + 1 for k in range(first, len(lines)) if lines[k].strip()), default=0)
+    for index in range(first, len(lines)):
+        text = lines[index].strip()
+        if not text or text.startswith("%"):
+            continue
+        number = index + 1
+        fields = (text.replace(header.separator, " ") if header.separator else text).split()
+        if _INVALID_MARK in text.lower() and len(fields) >= 2:
+            # demo5 writes a time mark it has no solution for as "<time>   Q=0, Time mark is not valid"
+            invalid_readings.append(_clock_reading(path, number, time_label, fields[0], fields[1]))
+            invalid_lines.append(number)
+            continue
+        if len(fields) != width:
+            if len(fields) < width and number == last_line:
+                # a file copied while RTKLIB was still writing it: its last line cut short
+                notices.append(InputNotice(path, [number], None, f"last line cut short ({len(fields)} of {width} "
+                                           "fields): dropped"))
+                continue
+            raise InputError(path, number, None, f"{len(fields)} fields, the column header (line "
+                             f"{header.column_line}) gives {width}")
+        readings.append(_clock_reading(path, number, time_label, fields[0], fields[1]))
+        row: list[float] = []
+        for name in wanted:
+            start, span = column_of[name]
+            if span == 3:
+                row.append(_dms(path, number, name, fields[start:start + 3]))
+                continue
+            try:
+                value = float(fields[start])
+            except ValueError:
+                raise InputError(path, number, name, f"not a number: {excerpt(fields[start])}") from None
+            if not np.isfinite(value):
+                raise InputError(path, number, name, f"not a finite number: {excerpt(fields[start])}")
+            row.append(value)
+        rows.append(row)
+        line_numbers.append(number)
+    invalid_utc = _to_utc(np.array(invalid_readings), header.time_system)
+    if not rows:
+        if invalid_lines:
+            empty = np.empty(0)
+            return PosSolution(path=path, header=header, utc=empty, lat_deg=empty, lon_deg=empty, height=empty,
+                               quality=np.empty(0, np.int64), n_sat=np.empty(0, np.int64), cov_ned=np.empty((0, 3, 3)),
+                               age=empty, ratio=empty, line=np.empty(0, np.int64), notices=notices,
+                               invalid_mark_utc=invalid_utc, invalid_mark_line=np.array(invalid_lines, np.int64))
+        raise InputError(path, None, None, "no solution lines after the header")
+    data = np.array(rows)
+    line = np.array(line_numbers, dtype=np.int64)
+    n_tail = data.shape[1] - 11
+    quality_f, n_sat = data[:, 3], data[:, 4]
+    bad_q = np.flatnonzero((quality_f != np.round(quality_f)) | (quality_f < 1) | (quality_f > 7))
+    if len(bad_q):
+        raise InputError(path, int(line[bad_q[0]]), "q", f"solution quality {quality_f[bad_q[0]]:g}: RTKLIB writes "
+                         "1 fix, 2 float, 3 SBAS, 4 DGPS, 5 single, 6 PPP (7 dead reckoning, demo5)")
+    sd = data[:, 5:8]
+    negative = np.flatnonzero(np.any(sd < 0, axis=1))
+    if len(negative):
+        k = int(negative[0])
+        axis = int(np.argmax(sd[k] < 0))
+        raise InputError(path, int(line[k]), sd_names[axis], "a standard deviation must not be negative")
+    utc = _to_utc(np.array(readings), header.time_system)
+    _check_times(path, utc, line, time_label)
+    lat_deg, lon_deg, height, cov_ned = _positions(path, header, data, notices)
+    if header.height == "geodetic":
+        geoid_h = height
+        height, used = ellipsoidal_from_orthometric(lat_deg, lon_deg, geoid_h, geoid)
+        notices.append(InputNotice(path, [header.format_line or header.column_line], "height(m)",
+                                   f"heights above the geoid converted to WGS 84 ellipsoidal with {used}; RTKLIB's own "
+                                   "geoid (by default its embedded 1-degree EGM96) may differ from this grid by "
+                                   "decimetres: write ellipsoidal heights (out-height=ellipsoidal) to avoid both"))
+    bad_lat = np.flatnonzero((np.abs(lat_deg) > 90.0) | (np.abs(lon_deg) > 180.0))
+    if len(bad_lat):
+        raise InputError(path, int(line[bad_lat[0]]), positions[0], "coordinate outside the valid range")
+    tail = {name: data[:, 11 + k] for k, name in enumerate(n for n in _KNOWN_TAIL if n in column_of)} if n_tail else {}
+    return PosSolution(path=path, header=header, utc=utc, lat_deg=lat_deg, lon_deg=lon_deg, height=height,
+                       quality=quality_f.astype(np.int64), n_sat=n_sat.astype(np.int64), cov_ned=cov_ned,
+                       age=tail.get("age(s)", np.full(len(line), np.nan)),
+                       ratio=tail.get("ratio", np.full(len(line), np.nan)), line=line, notices=notices,
+                       invalid_mark_utc=invalid_utc, invalid_mark_line=np.array(invalid_lines, np.int64))
+
+
+def _to_utc(readings: np.ndarray, time_system: str) -> np.ndarray:
+    """UTC [POSIX s] of clock readings on GPST, UTC or JST [s since 1970-01-01 of that calendar]."""
+    if time_system == "GPST":
+        return gps_week_to_utc(0, readings - GPS_EPOCH.timestamp())
+    if time_system == "JST":
+        return readings - JST_MINUS_UTC
+    return readings
+
+
+def _check_times(path: Path, utc: np.ndarray, line: np.ndarray, column: str) -> None:
+    check_increasing(path, utc, line, column)
+    same = np.flatnonzero(np.diff(utc) == 0)
+    if len(same):
+        raise InputError(path, int(line[same[0] + 1]), column, f"the same time as line {int(line[same[0]])}")
+
+
+def _positions(path: Path, header: PosHeader, data: np.ndarray, notices: list[InputNotice]
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Latitude, longitude [deg], height [m, as the file's], NED covariance (K, 3, 3) [m^2] of the rows."""
+    position, sd, cross = data[:, 0:3], data[:, 5:8], data[:, 8:11]
+    if header.layout.startswith("llh"):
+        cov_neu = covariance_from_signed_roots(sd, cross)  # sdn sde sdu, then ne, eu, un
+        return position[:, 0], position[:, 1], position[:, 2], neu_to_ned_covariance(cov_neu)
+    if header.layout == "xyz":
+        lat, lon, h = ecef_to_geodetic(position)
+        cov_e = covariance_from_signed_roots(sd, cross)  # sdx sdy sdz, then xy, yz, zx
+        return np.degrees(lat), np.degrees(lon), h, ecef_to_ned_covariance(cov_e, lat, lon)
+    assert header.base is not None
+    base_lat, base_lon, base_h = header.base
+    lat, lon, h = ecef_to_geodetic(enu_baseline_to_ecef(position, base_lat, base_lon, base_h))
+    cov_enu = covariance_from_signed_roots(sd, cross)  # sde sdn sdu, then en, nu, ue
+    cov = enu_at_base_to_ned_covariance(cov_enu, base_lat, base_lon, lat, lon)
+    return np.degrees(lat), np.degrees(lon), h, cov
+
+
+def _time_notice(solution: PosSolution, scale: str, first_utc: float | None = None) -> InputNotice:
+    system = solution.header.time_system
+    first = float(solution.utc[0]) if first_utc is None else first_utc
+    gps = utc_to_gps_seconds(np.array([first]))
+    leap = int(gps_minus_utc(gps)[0])
+    how = {"GPST": f"GPS time, UTC = GPST - {leap} s (leap seconds)", "UTC": "UTC",
+           "JST": "JST, UTC = JST - 9 h"}[system]
+    day = dt.datetime.fromtimestamp(first, tz=dt.UTC)
+    start = {"utc-day": f"UTC seconds of {day.date().isoformat()}",
+             "gps-week": f"GPS seconds of week {int(np.floor(float(gps[0]) / SECONDS_PER_WEEK))}",
+             "utc-posix": "UTC seconds since 1970-01-01"}[scale]
+    return InputNotice(solution.path, [solution.header.column_line], system,
+                       f"times in {how}; taken as {start} (the IMU's times must be on the same scale)")
+
+
+def _quality_notices(solution: PosSolution) -> list[InputNotice]:
+    counts = {q: int((solution.quality == q).sum()) for q in QUALITY_NAMES}
+    summary = ", ".join(f"{n} {QUALITY_NAMES[q]} (Q={q})" for q, n in counts.items() if n)
+    return [InputNotice(solution.path, [], "Q", f"{len(solution)} solutions: {summary}")]
+
+
+def read_rtklib_gnss(path: Path | str, time_scale: str = "utc-day", sigma_floors: Mapping[int, tuple[float, float,
+                     float]] | None = None, drop_code_solutions: bool = True, geoid: str = EGM96_HEIGHT,
+                     reference_utc: float | None = None, solution: PosSolution | None = None) -> GnssEpochs:
+    """An RTKLIB/Emlid ``.pos`` solution as GNSS antenna fixes with full NED covariances.
+
+    * times on ``time_scale`` (:data:`TIME_SCALES`; the IMU's must be the same), from ``reference_utc``'s day
+      (default the first solution's);
+    * each fix's covariance is the file's, its standard deviations raised to ``sigma_floors[Q]`` (north, east,
+      up [m]; default :data:`SIGMA_FLOORS`) with the correlations kept; ``sigma_neu`` holds its diagonal's roots;
+    * when the file has carrier-phase solutions (Q 1, 2, 6) and ``drop_code_solutions``, its code-only ones (Q 3,
+      4, 5: metres off, and biased against the carrier-phase track) are dropped; dead-reckoning (Q 7) solutions
+      are always dropped; every drop is a notice naming the lines.
+
+    ``solution``: the file already read by :func:`read_pos_solution` (with ``geoid``), so it is not parsed twice.
+    """
+    solution = read_pos_solution(path, geoid=geoid) if solution is None else solution
+    if not len(solution):
+        raise InputError(solution.path, None, None, "no solution lines, only camera time marks: this is an events "
+                         "file (give it to --events)")
+    floors = dict(SIGMA_FLOORS)
+    floors.update(sigma_floors or {})
+    notices = [*solution.notices, _time_notice(solution, time_scale, reference_utc), *_quality_notices(solution)]
+    if len(solution.invalid_mark_line):
+        notices.append(InputNotice(solution.path, solution.invalid_mark_line.tolist(), None, "time-mark lines "
+                                   "without a solution ('Time mark is not valid') skipped: not GNSS fixes"))
+    note = leap_seconds_note(float(solution.utc[-1]))
+    if note:
+        notices.append(InputNotice(solution.path, [], solution.header.time_system, note))
+    drop = solution.quality == 7
+    if drop.any():
+        notices.append(InputNotice(solution.path, solution.line[drop].tolist(), "Q", f"{int(drop.sum())} "
+                                   "dead-reckoning solution(s) (Q=7) dropped: not a GNSS fix"))
+    carrier = np.isin(solution.quality, CARRIER_QUALITIES)
+    code = np.isin(solution.quality, CODE_QUALITIES)
+    if drop_code_solutions and carrier.any() and code.any():
+        drop |= code
+        notices.append(InputNotice(solution.path, solution.line[code].tolist(), "Q", f"{int(code.sum())} code-only "
+                                   "solution(s) (Q=3 SBAS, 4 DGPS, 5 single) dropped: the file has carrier-phase "
+                                   "solutions (fix, float, PPP), which they would pull metres off"))
+    if drop.all():
+        raise InputError(solution.path, None, "Q", "no usable solution: every line was dropped (see the notices)")
+    floor = np.array([floors[int(q)] for q in solution.quality], dtype=float)
+    raised = floor > np.sqrt(np.diagonal(solution.cov_ned, axis1=-2, axis2=-1))
+    cov = with_sigma_floor(solution.cov_ned, floor)
+    cov = _positive_semidefinite(solution, cov, notices)
+    if raised.any():
+        per_q = ", ".join(f"Q={q}: {floors[q][0]:g}/{floors[q][1]:g}/{floors[q][2]:g} m"
+                          for q in sorted(set(solution.quality[raised.any(axis=1)].tolist())))
+        notices.append(InputNotice(solution.path, [], "sdn/sde/sdu", f"{int(raised.any(axis=1).sum())} solution(s) "
+                                   f"with standard deviations below the floor (north/east/up {per_q}) raised to it, "
+                                   "the correlations kept"))
+    keep = ~drop
+    times = solution_times(solution.utc, time_scale, reference_utc)
+    sigma = np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
+    fixes = GnssEpochs(time=times[keep], lat_deg=solution.lat_deg[keep], lon_deg=solution.lon_deg[keep],
+                       height=solution.height[keep], line=solution.line[keep], repeated=np.zeros(int(keep.sum()), bool),
+                       notices=notices, sigma_neu=sigma[keep], cov_ned=cov[keep])
+    from georef.io.plausibility import check_gnss_jumps
+
+    fixes, jumps = check_gnss_jumps(solution.path, fixes, _LAYOUTS[solution.header.layout][0][0])
+    fixes.notices.extend(jumps)
+    return fixes
+
+
+def _positive_semidefinite(solution: PosSolution, cov: np.ndarray, notices: list[InputNotice]) -> np.ndarray:
+    """The covariances with negative eigenvalues (the file's 0.1 mm rounding of near-perfect correlations) clipped
+    to 0, with a notice naming the lines."""
+    values, vectors = np.linalg.eigh(cov)
+    scale = np.maximum(np.abs(values).max(axis=-1, keepdims=True), 1e-30)
+    bad = np.any(values < -1e-9 * scale, axis=-1)
+    if not bad.any():
+        return cov
+    clipped = vectors @ (np.clip(values, 0.0, None)[..., None] * np.swapaxes(vectors, -1, -2))
+    notices.append(InputNotice(solution.path, solution.line[bad].tolist(), "sdne/sdeu/sdun", f"{int(bad.sum())} "
+                               "covariance(s) not positive semi-definite (correlations beyond 1 after rounding): "
+                               "negative eigenvalues set to 0"))
+    return np.where(bad[:, None, None], clipped, cov)
+
+
+def read_rtklib_events(path: Path | str, time_scale: str = "utc-day", reference_utc: float | None = None,
+                       geoid: str = EGM96_HEIGHT, solution: PosSolution | None = None) -> tuple[Exposures, None]:
+    """The camera events of an Emlid Studio / RTKLIB demo5 ``_events.pos`` as exposures.
+
+    The file is a solution file (``outsol`` of demo5's ``postpos.c``): one line per time mark of the receiver's
+    event input, with the solution interpolated to it, and ``<time>   Q=0, Time mark is not valid`` for a mark the
+    receiver had no solution for. Every mark is an exposure (its time is the receiver's either way): frame ids
+    1, 2, ... in line order, times on ``time_scale`` (:func:`solution_times`), each known as well as a hot-shoe
+    feedback's (:data:`~georef.io.camera.FEEDBACK_TIME_SIGMA`). The event positions are not used: georef places
+    every exposure on its own trajectory. Returns (exposures, None): the file names no images. ``solution``: the
+    file already read by :func:`read_pos_solution`, so it is not parsed twice."""
+    from georef.io.camera import FEEDBACK_TIME_SIGMA, Exposures
+
+    solution = read_pos_solution(path, geoid=geoid) if solution is None else solution
+    utc = np.concatenate([solution.utc, solution.invalid_mark_utc])
+    line = np.concatenate([solution.line, solution.invalid_mark_line]).astype(np.int64)
+    order = np.argsort(line, kind="stable")
+    utc, line = utc[order], line[order]
+    back = np.flatnonzero(np.diff(utc) < 0)
+    if len(back):
+        raise InputError(solution.path, int(line[back[0] + 1]), solution.header.time_system, "event times go "
+                         f"backwards from line {int(line[back[0]])}")
+    times = solution_times(utc, time_scale, reference_utc)
+    # the notice names the day (or week) the times count from: reference_utc's when given
+    notices = [*solution.notices, _time_notice(solution, time_scale, float(utc[0]) if reference_utc is None
+                                               else reference_utc),
+               InputNotice(solution.path, [], None, f"{len(utc)} camera events; their positions in the file are not "
+                           "used (each exposure is placed on the fused trajectory)")]
+    if len(solution.invalid_mark_line):
+        notices.append(InputNotice(solution.path, solution.invalid_mark_line.tolist(), None, "camera event(s) "
+                                   "without a GNSS solution ('Time mark is not valid'): kept, the time is the "
+                                   "receiver's"))
+    frames = np.array([str(k + 1) for k in range(len(utc))], dtype=object)
+    exposures = Exposures(path=solution.path, frame=frames, time=times, lines=line, notices=notices,
+                          problem=np.array([""] * len(utc)), time_sigma=np.full(len(utc), FEEDBACK_TIME_SIGMA))
+    return exposures, None
