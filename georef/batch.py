@@ -43,6 +43,8 @@ SUMMARY_COLUMNS = ["flight", "status", "method", "frames", "frames_flagged", "gn
 #: the errors that mean the flight's input or configuration is wrong (the CLI's exit code 2); any other
 #: exception is a bug in georef (exit code 3)
 USER_ERRORS = (GeorefError, ValueError, KeyError, OSError)
+#: a flight folder's photos, for the ``images`` export (geotagged copies, georef.io.image_export)
+IMAGES_FOLDER = "images"
 
 
 @dataclass(frozen=True)
@@ -53,6 +55,8 @@ class FlightJob:
     pos: str
     camera: str
     config: str | None = None
+    #: the flight's photos for the ``images`` export (``<flight>/images/``, or the manifest's ``images`` column)
+    images: str | None = None
 
 
 def discover(source: Path | str) -> list[FlightJob]:
@@ -69,7 +73,8 @@ def discover(source: Path | str) -> list[FlightJob]:
             return str(value if Path(value).is_absolute() else base / value)
 
         return [FlightJob(row.flight, resolve(row.pos), resolve(row.camera),
-                          resolve(row.config) if getattr(row, "config", "") else None)
+                          resolve(row.config) if getattr(row, "config", "") else None,
+                          resolve(row.images) if getattr(row, "images", "") else None)
                 for row in manifest.itertuples(index=False)]
     if not source.is_dir():
         raise InputError(source, None, None, "neither a folder of flights nor a manifest CSV")
@@ -78,7 +83,8 @@ def discover(source: Path | str) -> list[FlightJob]:
         camera = next((folder / name for name in ("Kamera.txt", "camera.txt") if (folder / name).exists()), None)
         config = folder / "flight.toml"
         jobs.append(FlightJob(folder.name, str(folder / "POS.txt"), str(camera or folder / "Kamera.txt"),
-                              str(config) if config.exists() else None))
+                              str(config) if config.exists() else None,
+                              str(folder / IMAGES_FOLDER) if (folder / IMAGES_FOLDER).is_dir() else None))
     if not jobs:
         raise InputError(source, None, None, "no flight folders found (each needs POS.txt and Kamera.txt)")
     return jobs
@@ -109,15 +115,35 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None,
         cfg = load_config(job.config) if job.config else ProcessingConfig()
         if method:
             cfg = cfg.updated(method=method)
-        specs = [ExportSpec("csv", out / "eo.csv"), *(ExportSpec(fmt, out / name) for fmt, name in exports)]
+        specs = [ExportSpec("csv", out / "eo.csv"), *(ExportSpec(fmt, out / name) for fmt, name in exports
+                                                      if fmt != "images")]
         frames = (OutputFrames(cfg.output.crs, cfg.output.height, cfg.output.vertical_crs)
                   if cfg.output.crs or cfg.output.height != "ellipsoidal" else None)
         check_exports(specs, frames)  # a format that needs this flight's CRS fails before processing
+        image_targets = [out / name for fmt, name in exports if fmt == "images"]
+        if image_targets:
+            from georef.io.image_export import check_image_export
+
+            if job.images is None:
+                raise InputError(job.flight, None, None, f"--export images: this flight has no photos (a folder "
+                                 f"{IMAGES_FOLDER}/ beside its POS.txt, or an images column in the manifest)")
+            for target in image_targets:
+                check_image_export(Path(job.images), target, frames)
         result = process(job.pos, job.camera, cfg, calibration_prior=calibration_prior)
         with atomic_group():
             for spec in specs:
                 write_export(result.columns, spec.path, spec.fmt, frames=result.frames,
                              odm_angles=cfg.output.odm_angles)
+            if image_targets:
+                from georef.io.image_export import export_images
+
+                flight_day = None if result.flight is None else float(result.flight.day_start_utc)
+                for target in image_targets:
+                    done = export_images(result.columns, Path(job.images), target, frames=result.frames,
+                                         day_start_posix=flight_day,
+                                         date_source=None if flight_day is None else "the log's own date")
+                    log_lines.extend(done.lines())
+                    row["outputs"].append({"what": "export", "format": "images", "path": str(target)})
         row["outputs"] += [{"what": "table" if k == 0 else "export", "format": spec.fmt, "path": str(spec.path)}
                            for k, spec in enumerate(specs)]
         summary = result.summary()

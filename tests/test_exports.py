@@ -545,4 +545,4 @@ def test_export_specs():
     assert parse_export("out/geo.txt").fmt == "odm"
     with pytest.raises(ExportError):
         parse_export("kml:")
-    assert set(FORMATS) == {"csv", "metashape", "pix4d", "odm", "parge", "geojson", "kml"}
+    assert set(FORMATS) == {"csv", "metashape", "pix4d", "odm", "parge", "geojson", "kml", "sbet"}

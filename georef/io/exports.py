@@ -41,8 +41,11 @@ if TYPE_CHECKING:
     from georef.eo import EoColumns
     from georef.frames.heights import OutputFrames
 
-FORMATS = ("csv", "metashape", "pix4d", "odm", "parge", "geojson", "kml")
+FORMATS = ("csv", "metashape", "pix4d", "odm", "parge", "geojson", "kml", "sbet")
 NEEDS_CRS = ("metashape", "pix4d", "odm")
+#: formats of the navigation solution, not of the EO table: written by their own module (``sbet``:
+#: :func:`georef.io.sbet.write_sbet`, with its ``smrmsg_<name>.out`` beside it)
+NAV_FORMATS = ("sbet",)
 #: formats chosen from a file's extension (``-o stations.kml``, ``--export stations.geojson``)
 EXTENSIONS = {".csv": "csv", ".kml": "kml", ".geojson": "geojson"}
 #: file names that name their format
@@ -86,6 +89,9 @@ def parse_folder_export(text: str) -> ExportSpec:
     """An export of ``georef batch``, relative to each flight's output folder: ``FORMAT`` (its default file name,
     :data:`DEFAULT_FILE_NAMES`), ``FORMAT:NAME`` or ``NAME`` with an extension that names the format. ``NAME`` is
     a plain file name: a flight's outputs stay in its own folder."""
+    if text.partition(":")[0] in NAV_FORMATS or text in NAV_FORMATS:
+        raise ExportError(f"--export {text!r}: georef batch does not write SBETs (a POS.txt flight has no date for "
+                          "GPS time); run georef process --export sbet:FILE --utc-date YYYY-MM-DD per flight")
     if text in FORMATS:
         return ExportSpec(text, Path(DEFAULT_FILE_NAMES[text]))
     spec = parse_export(text)
@@ -121,6 +127,13 @@ def check_exports(specs: Sequence[ExportSpec], frames: OutputFrames | None) -> N
         if key in seen:
             raise ExportError(f"{spec.path} is asked for twice ({seen[key]} and {spec.fmt})")
         seen[key] = spec.fmt
+        if spec.fmt == "sbet":  # its RMS file is written beside it
+            from georef.io.sbet import smrmsg_path_for
+
+            companion = smrmsg_path_for(spec.path)
+            if companion.resolve() in seen:
+                raise ExportError(f"{companion} (the RMS file of {spec.path}) is asked for twice")
+            seen[companion.resolve()] = f"the RMS file of sbet:{spec.path}"
 
 
 def _kml_frames(frames: OutputFrames | None) -> OutputFrames:
@@ -152,8 +165,13 @@ def _grid(table: pd.DataFrame, fmt: str, frames: OutputFrames | None) -> pd.Data
 
 def _horizontal_sigma(rows: pd.DataFrame) -> pd.Series:
     """One horizontal σ per row for formats with a single value: the per-axis σ of the isotropic distribution
-    with the same total variance, sqrt((σx² + σy²) / 2) — not hypot(σx, σy), which is √2 times a per-axis σ."""
-    return np.sqrt((rows["sigma_x"] ** 2 + rows["sigma_y"] ** 2) / 2.0)
+    with the same total variance, sqrt((σx² + σy²) / 2) — not hypot(σx, σy), which is √2 times a per-axis σ
+    (:func:`georef.frames.pix4d.per_axis_sigma`, also used for the accuracies of tagged image copies)."""
+    import pandas as pd
+
+    from georef.frames.pix4d import per_axis_sigma
+
+    return pd.Series(per_axis_sigma(rows["sigma_x"], rows["sigma_y"]), index=rows.index)
 
 
 def write_metashape(table: pd.DataFrame, path: Path, frames: OutputFrames | None) -> None:
@@ -185,9 +203,12 @@ def write_pix4d(table: pd.DataFrame, path: Path, frames: OutputFrames | None) ->
     rows = _grid(table, "pix4d", frames)
     assert frames is not None
     first, second = ("northing", "easting") if northing_first(frames) else ("easting", "northing")
+    from georef.frames.pix4d import pix4d_angles  # the same angles as the Camera:Yaw/Pitch/Roll of image copies
+
+    angles = pix4d_angles(rows["roll"], rows["pitch"], rows["yaw"])
     out = pd.DataFrame({"imagename": _labels(rows), first: rows[first].round(4), second: rows[second].round(4),
-                        "z": _heights(rows, frames).round(4), "yaw": rows["yaw"].round(6),
-                        "pitch": rows["pitch"].round(6), "roll": rows["roll"].round(6),
+                        "z": _heights(rows, frames).round(4), "yaw": np.round(angles.yaw, 6),
+                        "pitch": np.round(angles.pitch, 6), "roll": np.round(angles.roll, 6),
                         "accuracy_horz": _horizontal_sigma(rows).round(4), "accuracy_vert": rows["sigma_u"].round(4)})
     with atomic_write(path) as handle:
         handle.write("#" + ",".join(out.columns) + "\n")
@@ -272,6 +293,8 @@ def write_export(table: pd.DataFrame | EoColumns, path: Path | str, fmt: str, cr
 
         frames = OutputFrames(crs)
     check_exports([ExportSpec(fmt, path)], frames)
+    if fmt in NAV_FORMATS:
+        raise ExportError(f"{fmt} is written from the navigation solution, not the EO table: georef.io.sbet.write_sbet")
     if fmt == "csv":
         write_eo_csv(table, path)
         return path

@@ -1,0 +1,296 @@
+"""Geotagged copies of a flight's photos (``georef process ... --images SRC --export images:DIR``).
+
+Every photo in ``SRC`` (``.jpg``, ``.jpeg``, ``.tif``, ``.tiff``, any case) is matched to a frame of the EO table
+— by the ``image`` column of ``--image-names``, or by its capture time (:mod:`georef.io.image_match`) — and a
+copy with the frame's geotags (:mod:`georef.io.image_tags`) is written to ``DIR``, each atomically
+(:func:`georef.io.atomic.atomic_write`, inside the run's all-or-nothing group). The photos are only read.
+
+Which photos get a copy (``docs/images.md``):
+
+* a photo matched to a frame with a position and finite sigmas: a copy, also when the frame is **flagged** for
+  a GNSS outage, inertial-only navigation at the ends, or an IMU gap — those flags mean a larger uncertainty,
+  and the frame's sigmas already carry it (``georef.eo``), so the copy's accuracies tell Pix4D and ODM to weigh it
+  less; its flag is in the table;
+* no copy for a frame whose **position or time is in doubt beyond its sigmas**: outside the navigation span (no
+  values), no valid sigma, a duplicate frame number (which exposure is this photo?), a time earlier than the
+  previous frame's (the exposure time is suspect); and none for a photo without a frame. A copy without
+  georef's tags would carry the drone's own position, a second source of another accuracy, into the project.
+
+Every photo, copied or not, is a row of ``DIR/georef_images.csv`` with its status and reason, and the counts are
+in the run's output; frames named for a photo that is not in ``SRC`` are counted and listed there too.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from georef.eo import FLAG_DUPLICATE, FLAG_NO_SIGMA, FLAG_ORDER
+from georef.frames.heights import EGM96_HEIGHT
+from georef.frames.pix4d import per_axis_sigma, pix4d_angles
+from georef.io.atomic import atomic_write
+from georef.io.errors import GeorefError, InputError
+from georef.io.image_match import ClockMatch, ClockMatchError, match_capture_times, offset_from_pairs
+from georef.io.image_tags import IMAGE_SUFFIXES, Geotag, SourceImage, read_source, tagged_copy
+
+if TYPE_CHECKING:
+    from georef.eo import EoColumns
+    from georef.frames.heights import OutputFrames
+
+#: the table of every photo, written into DIR
+REPORT_NAME = "georef_images.csv"
+#: flags after which a frame's photo gets no tags (its position or time is in doubt beyond its sigmas)
+UNTAGGED_FLAGS = (FLAG_DUPLICATE, FLAG_ORDER, FLAG_NO_SIGMA)
+TAGGED = "tagged"
+TAGGED_FLAGGED = "tagged, flagged"
+NOT_TAGGED = "not tagged"
+BY_NAME = "image names"
+#: a named photo whose capture time is this far [s] from its frame's (after the median offset) is reported
+NAMED_DISAGREES_S = 1.0
+BY_CAPTURE_TIME = "capture time"
+
+
+class ImageExportError(GeorefError):
+    """The image export cannot be done as asked (checked before processing where possible)."""
+
+
+@dataclass(frozen=True)
+class ImageRow:
+    """One photo of ``SRC``: its frame (``""`` without one), status (:data:`TAGGED`, :data:`TAGGED_FLAGGED`,
+    :data:`NOT_TAGGED`), the reason or flag, the copy written (``""`` without), the exposure's UTC time of day [s]
+    and the capture time's residual after the clock offset [s] (NaN without)."""
+
+    image: str
+    frame: str
+    status: str
+    reason: str
+    copy: str
+    time_utc_s: float
+    capture_residual_s: float
+
+
+@dataclass
+class ImageExport:
+    """What ``--export images:DIR`` did: a row per photo, how photos were matched, the camera clock (``None``
+    without capture times), the heights written, whether the date is known, frames named for missing photos."""
+
+    source_dir: Path
+    target_dir: Path
+    method: str
+    rows: list[ImageRow] = field(default_factory=list)
+    clock: ClockMatch | None = None
+    vertical_datum: str = f"EGM96 height ({EGM96_HEIGHT})"
+    date_source: str | None = None
+    frames_without_photo: list[str] = field(default_factory=list)
+
+    def count(self, status: str) -> int:
+        return sum(row.status == status for row in self.rows)
+
+    def lines(self) -> list[str]:
+        """The run's output about the copies."""
+        not_tagged = [row for row in self.rows if row.status == NOT_TAGGED]
+        reasons: dict[str, int] = {}
+        for row in not_tagged:
+            reasons[row.reason] = reasons.get(row.reason, 0) + 1
+        flagged = [row for row in self.rows if row.status == TAGGED_FLAGGED]
+        out = [f"images: {self.count(TAGGED) + len(flagged)} of {len(self.rows)} photos in {self.source_dir} copied "
+               f"with geotags to {self.target_dir} (matched by {self.method}); altitude: {self.vertical_datum}, "
+               f"WGS 84 latitude/longitude"]
+        if flagged:
+            out.append(f"images: {len(flagged)} copies are of flagged frames (their sigmas carry the flag; see "
+                       f"{REPORT_NAME}): " + "; ".join(sorted({row.reason for row in flagged}))[:300])
+        if not_tagged:
+            out.append(f"images: {len(not_tagged)} photos not copied: "
+                       + "; ".join(f"{n} {reason}" for reason, n in sorted(reasons.items(), key=lambda kv: -kv[1])))
+        if self.frames_without_photo:
+            shown = ", ".join(self.frames_without_photo[:8]) + (" ..." if len(self.frames_without_photo) > 8 else "")
+            out.append(f"images: {len(self.frames_without_photo)} frames have no photo in {self.source_dir}: {shown}")
+        off = [row.image for row in self.rows if abs(row.capture_residual_s) > NAMED_DISAGREES_S]
+        if off and self.method == BY_NAME:
+            out.append(f"images: warning: {len(off)} photos' capture times disagree with their named frame by more "
+                       f"than {NAMED_DISAGREES_S:.0f} s after the camera clock offset ({', '.join(off[:5])}): check "
+                       "--image-names")
+        if self.clock is not None:
+            drift = f", drift {self.clock.drift_ppm:+.1f} ppm" if self.clock.drift_ppm else ""
+            given = " (given)" if self.clock.fixed else ""
+            out.append(f"images: camera clock minus UTC {self.clock.offset_s:+.3f} s{given}{drift}, spread "
+                       f"{self.clock.spread_s:.3f} s over {self.clock.matched} photos")
+        out.append("images: GPSDateStamp " + (f"from {self.date_source}" if self.date_source else
+                                               "not written (the flight's UTC date is unknown: give --utc-date)"))
+        return out
+
+    def to_dict(self) -> dict:
+        """For the run's JSON summary."""
+        clock = None if self.clock is None else {
+            "offset_s": self.clock.offset_s, "drift_ppm": self.clock.drift_ppm, "spread_s": self.clock.spread_s,
+            "matched": self.clock.matched, "given": self.clock.fixed}
+        return {"source": str(self.source_dir), "target": str(self.target_dir), "matched_by": self.method,
+                "photos": len(self.rows), "tagged": self.count(TAGGED), "tagged_flagged": self.count(TAGGED_FLAGGED),
+                "not_tagged": self.count(NOT_TAGGED), "vertical_datum": self.vertical_datum,
+                "date_source": self.date_source, "camera_clock": clock,
+                "frames_without_photo": self.frames_without_photo}
+
+
+def source_photos(source_dir: Path) -> list[Path]:
+    """The photos of ``source_dir`` georef tags, by name."""
+    return sorted(p for p in Path(source_dir).iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+
+
+def check_image_export(source_dir: Path | None, target_dir: Path, frames: OutputFrames | None) -> None:
+    """Before processing: ``--images`` is a folder with photos, ``DIR`` is another folder (never the photos' own:
+    the originals are never written), and PROJ has the EGM96 grid for the altitudes."""
+    from georef.frames.heights import OutputFrames
+
+    if source_dir is None:
+        raise ImageExportError(f"--export images:{target_dir} copies the flight's photos: give their folder with "
+                               "--images SRC_DIR")
+    if not Path(source_dir).is_dir():
+        raise InputError(source_dir, None, None, "--images: not a folder of photos")
+    if not source_photos(source_dir):
+        raise InputError(source_dir, None, None, f"--images: no photos ({', '.join(IMAGE_SUFFIXES)}) in this folder")
+    if target_dir.exists() and not target_dir.is_dir():
+        raise ImageExportError(f"--export images:{target_dir}: exists and is not a folder")
+    if target_dir.resolve() == Path(source_dir).resolve():
+        raise ImageExportError(f"--export images:{target_dir} is the photos' own folder: georef never writes over the "
+                               "originals; name another folder")
+    (frames or OutputFrames()).egm96([45.0], [15.0], [0.0])  # the EGM96 grid is there, or GeoidGridError now
+
+
+def _untagged_reason(flag: str, values: list[float]) -> str | None:
+    for bad in UNTAGGED_FLAGS:
+        if bad in flag:
+            return f"frame flagged: {flag}"
+    if not np.all(np.isfinite(values)):
+        return f"frame not georeferenced: {flag}" if flag else "frame not georeferenced"
+    return None
+
+
+def _match(photos: list[SourceImage], columns: EoColumns, fixed_offset_s: float | None,
+           by_name: bool) -> tuple[np.ndarray, list[str], ClockMatch | None]:
+    """Per photo the EO row (-1: none) and the reason when none, and the clock (when capture times exist)."""
+    n = len(photos)
+    rows = np.full(n, -1)
+    reasons = [""] * n
+    times = np.asarray(columns["time"], float)
+    timed = [i for i, p in enumerate(photos) if p.capture is not None]
+    posix = np.array([photos[i].capture.posix_s for i in timed])  # type: ignore[union-attr]
+    resolution = np.array([photos[i].capture.resolution_s for i in timed])  # type: ignore[union-attr]
+    clock = None
+    if by_name:
+        index: dict[str, int] = {}
+        for row, name in enumerate(np.asarray(columns["image"], dtype=object)):
+            index.setdefault(str(name), row)
+        for i, photo in enumerate(photos):
+            rows[i] = index.get(photo.path.name, -1)
+            if rows[i] < 0:
+                reasons[i] = "no frame is named for this photo (--image-names)"
+        paired = [i for i in timed if rows[i] >= 0]
+        if paired:
+            pick = np.array([timed.index(i) for i in paired])
+            clock = offset_from_pairs(posix[pick], resolution[pick], times[rows[paired]])
+        return rows, reasons, clock
+    if not timed:
+        raise ClockMatchError(f"{photos[0].path.parent}: no photo has a capture time (EXIF DateTimeOriginal) to "
+                              "match it to its frame: name the photos with --image-names")
+    clock = match_capture_times(posix, resolution, times, fixed_offset_s)
+    for k, i in enumerate(timed):
+        rows[i] = clock.frame_index[k]
+        if rows[i] < 0:
+            reasons[i] = (f"no exposure within {clock.tolerance_s[k]:.3f} s of its capture time (camera clock minus "
+                          f"UTC {clock.offset_s:+.3f} s)")
+    for i, photo in enumerate(photos):
+        if photo.capture is None:
+            reasons[i] = f"{photo.capture_problem}: cannot be matched by capture time"
+    return rows, reasons, clock
+
+
+def export_images(columns: EoColumns, source_dir: Path, target_dir: Path, frames: OutputFrames | None = None,
+                  fixed_offset_s: float | None = None, day_start_posix: float | None = None,
+                  date_source: str | None = None) -> ImageExport:
+    """Match the photos of ``source_dir`` to the EO table ``columns`` and write their tagged copies and
+    ``georef_images.csv`` into ``target_dir`` (created). ``fixed_offset_s``: camera clock minus UTC [s] when known;
+    ``day_start_posix``: 00:00 UTC [POSIX s] of the EO table's day when the log or ``--utc-date`` gives it
+    (``date_source`` says which); otherwise the photos' capture times give it, or no ``GPSDateStamp`` is written.
+    Raises :class:`~georef.io.image_match.ClockMatchError` for an ambiguous capture-time match."""
+    from georef.frames.heights import OutputFrames
+
+    photos = [read_source(path) for path in source_photos(source_dir)]
+    by_name = "image" in columns
+    rows, reasons, clock = _match(photos, columns, fixed_offset_s, by_name)
+    result = ImageExport(Path(source_dir), Path(target_dir), BY_NAME if by_name else BY_CAPTURE_TIME, clock=clock)
+    if day_start_posix is None and clock is not None:
+        day_start_posix = clock.day_start_posix
+        date_source = "the photos' capture times (camera clock within 12 h of UTC)"
+    elif day_start_posix is not None and clock is not None and not clock.fixed:
+        # the photos' day and the log's agree but for the camera's time zone: report the offset from the known day
+        shift = clock.day_start_posix - day_start_posix
+        clock = replace(clock, offset_s=clock.offset_s + shift, day_start_posix=day_start_posix)
+        result.clock = clock
+    result.date_source = date_source
+    if by_name:
+        present = {p.path.name for p in photos}
+        result.frames_without_photo = [str(f) for f, name in zip(columns["frame"], columns["image"], strict=True)
+                                       if str(name) not in present]
+    else:
+        claimed = set(rows[rows >= 0].tolist())
+        result.frames_without_photo = [str(columns["frame"][j]) for j in range(len(columns["time"]))
+                                       if j not in claimed and np.isfinite(columns["time"][j])]
+    lat, lon, h = (np.asarray(columns[name], float) for name in ("lat", "lon", "height"))
+    ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(h)
+    altitude = np.full(len(lat), np.nan)
+    if ok.any():
+        altitude[ok] = (frames or OutputFrames()).egm96(lat[ok], lon[ok], h[ok])
+    xy = per_axis_sigma(columns["sigma_n"], columns["sigma_e"])
+    angles = pix4d_angles(columns["roll"], columns["pitch"], columns["yaw"])
+    flags = np.asarray(columns["flag"], dtype=object)
+    residual = np.full(len(photos), np.nan)
+    if clock is not None:
+        timed = [i for i, p in enumerate(photos) if p.capture is not None and (not by_name or rows[i] >= 0)]
+        residual[timed] = clock.residual_s[: len(timed)]
+    Path(target_dir).mkdir(parents=True, exist_ok=True)
+    for i, photo in enumerate(photos):
+        j = int(rows[i])
+        if j < 0:
+            result.rows.append(ImageRow(photo.path.name, "", NOT_TAGGED, reasons[i], "", np.nan, residual[i]))
+            continue
+        frame, flag, time_s = str(columns["frame"][j]), str(flags[j] or ""), float(columns["time"][j])
+        values = [lat[j], lon[j], altitude[j], xy[j], columns["sigma_u"][j], columns["roll"][j],
+                  columns["pitch"][j], columns["yaw"][j], columns["sigma_roll"][j], columns["sigma_pitch"][j],
+                  columns["sigma_yaw"][j]]
+        why = _untagged_reason(flag, values)
+        if why is not None:
+            result.rows.append(ImageRow(photo.path.name, frame, NOT_TAGGED, why, "", time_s, residual[i]))
+            continue
+        tag = Geotag(lat=float(lat[j]), lon=float(lon[j]), altitude_m=float(altitude[j]),
+                     utc_posix=None if day_start_posix is None else day_start_posix + time_s,
+                     utc_seconds_of_day=time_s,
+                     angles=type(angles)(angles.yaw[j], angles.pitch[j], angles.roll[j]),
+                     xy_accuracy_m=float(xy[j]), z_accuracy_m=float(columns["sigma_u"][j]),
+                     yaw_accuracy_deg=float(columns["sigma_yaw"][j]),
+                     pitch_accuracy_deg=float(columns["sigma_pitch"][j]),
+                     roll_accuracy_deg=float(columns["sigma_roll"][j]))
+        copy = Path(target_dir) / photo.path.name
+        data = tagged_copy(photo.path.read_bytes(), tag, photo.make, photo.path)
+        with atomic_write(copy, "wb") as handle:
+            handle.write(data)
+        result.rows.append(ImageRow(photo.path.name, frame, TAGGED_FLAGGED if flag else TAGGED, flag, str(copy),
+                                    time_s, residual[i]))
+    _write_report(result)
+    return result
+
+
+def _write_report(result: ImageExport) -> None:
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(["image", "frame", "status", "reason", "time_utc_s", "capture_residual_s", "copy"])
+    for row in result.rows:
+        writer.writerow([row.image, row.frame, row.status, row.reason,
+                         "" if not np.isfinite(row.time_utc_s) else f"{row.time_utc_s:.6f}",
+                         "" if not np.isfinite(row.capture_residual_s) else f"{row.capture_residual_s:.4f}", row.copy])
+    with atomic_write(result.target_dir / REPORT_NAME) as handle:
+        handle.write(buffer.getvalue())
