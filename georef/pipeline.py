@@ -31,7 +31,7 @@ from georef.eo import (
 from georef.exposure import interpolate_to_exposures
 from georef.frames.rotations import wrap_pi
 from georef.fusion import axis, ins
-from georef.fusion.ins_layout import UNIT_DRIFT, UNIT_YAW
+from georef.fusion.ins_layout import BA, BG, LEVER, NX_CAL, UNIT_DRIFT, UNIT_YAW
 from georef.fusion.solution import NavSolution
 from georef.io.camera import Exposures
 from georef.io.camera import read_exposures as read_camera_exposures
@@ -229,7 +229,14 @@ def solution_figures(nav: NavSolution, gnss: GnssSection, fix_sigma: np.ndarray 
       1-sigma; ``graph_rejected_fixes`` the fixes the robust pass dropped; ``graph_gyro_scale_ppm``,
       ``graph_accel_scale_ppm`` and their ``..._sigma_ppm`` the scale-factor errors [ppm, body x, y, z] estimated
       with the trajectory (absent when ``graph_scale_factor_sigma`` is 0), ``graph_scale_prior_sigma_ppm`` their
-      prior's 1-sigma: an axis whose sigma stays near it was not observable in this flight's motion.
+      prior's 1-sigma: an axis whose sigma stays near it was not observable in this flight's motion;
+    * ``accel_bias_sigma_m_s2`` [m/s^2, body x, y, z] and ``gyro_bias_sigma_deg_h`` [deg/h, body x, y, z]: the
+      filter's 1-sigma of its accelerometer and gyro bias estimates (smoothed when an RTS pass ran), RMS over the
+      covariance epochs of the flight; the accelerometer's x, y over g are the sigma of the INS tilt error fixed in
+      the body frame (:func:`georef.frames.calibration.accel_bias_body_tilt`), which ``georef
+      calibrate-boresight --process-summary`` uses. ``gnss_lever_arm_sigma_m`` [m, body] the same for the GNSS
+      lever arm when the filter estimated it (else None). None for ``--method graph`` (the graph's trajectory has
+      no bias marginals; the EKF + RTS it starts from are not the solution written).
     """
     diagnostics = nav.diagnostics
     if diagnostics is None:
@@ -248,6 +255,7 @@ def solution_figures(nav: NavSolution, gnss: GnssSection, fix_sigma: np.ndarray 
         "still_spans_s": [tuple(float(v) for v in span) for span in (getattr(diagnostics, "still_spans", None) or [])],
         **_held_out_figures(getattr(diagnostics, "held_out", None)),
         **_sigma_scale_figures(nav),
+        **_bias_sigma_figures(nav),
     }
     ins_info = nav.ins_info
     if diagnostics.unit_aiding and ins_info is not None and len(ins_info.epoch_sigma):
@@ -278,6 +286,29 @@ def solution_figures(nav: NavSolution, gnss: GnssSection, fix_sigma: np.ndarray 
                                 ("graph_accel_scale_sigma_ppm", scale.accel_sigma_ppm)):
                 figures[key] = tuple(float(v) for v in values)
             figures["graph_scale_prior_sigma_ppm"] = float(scale.prior_sigma_ppm)
+    return figures
+
+
+def _bias_sigma_figures(nav: NavSolution) -> dict[str, object]:
+    """The sensor-bias (and estimated GNSS lever-arm) 1-sigma of :func:`solution_figures`: RMS over the covariance
+    epochs from the filter's first row (the RTS's smoothed sigmas when it ran, else the forward filter's)."""
+    figures: dict[str, object] = {"accel_bias_sigma_m_s2": None, "gyro_bias_sigma_deg_h": None,
+                                  "gnss_lever_arm_sigma_m": None}
+    ins_info = nav.ins_info
+    if nav.graph_info is not None or ins_info is None or not len(ins_info.epoch_sigma):
+        return figures
+    epochs = np.asarray(ins_info.epoch_rows) >= int(ins_info.start_row)
+    sigma = np.asarray(ins_info.epoch_sigma, float)[epochs]
+    if not len(sigma):
+        return figures
+
+    def rms(first: int) -> np.ndarray:
+        return np.sqrt(np.mean(sigma[:, first:first + 3] ** 2, axis=0))
+
+    figures["accel_bias_sigma_m_s2"] = tuple(float(v) for v in rms(BA))
+    figures["gyro_bias_sigma_deg_h"] = tuple(float(v) for v in np.degrees(rms(BG)) * 3600.0)
+    if sigma.shape[1] >= NX_CAL:
+        figures["gnss_lever_arm_sigma_m"] = tuple(float(v) for v in rms(LEVER))
     return figures
 
 
@@ -474,22 +505,65 @@ def process_flight(flight: FlightLog, cfg: ProcessingConfig, exposures: Exposure
 
 
 def process_generic(imu_path: Path | str, gnss_path: Path | str, events_path: Path | str, cfg: ProcessingConfig,
-                    progress: Progress | None = None) -> ProcessResult:
+                    progress: Progress | None = None, time_scale: str = "auto") -> ProcessResult:
     """Georeference every exposure of ``events.csv`` from the generic ``imu.csv`` and ``gnss.csv``
-    (:mod:`georef.io.generic`; all three on one clock)."""
+    (:mod:`georef.io.generic`; all three on one clock). An RTKLIB/Emlid ``.pos`` or ``_events.pos`` among them is
+    put on imu.csv's time scale, ``time_scale`` or the one detected (:mod:`georef.io.pos_time_scale`)."""
     from georef.io.generic import read_generic_log
 
+    _fusable_inputs(cfg, "imu.csv and gnss.csv")
     say = progress or (lambda _step: None)
-    if cfg.processing.method == "axis":
-        raise GeorefError("--method axis needs a POS unit's own roll, pitch and yaw (POS.txt); imu.csv and gnss.csv "
-                          "are fused with rts, ekf or graph")
-    frames = _output_frames(cfg)
-    image_names = ImageNames.parse(cfg.output.image_names) if cfg.output.image_names else None
     start = time.perf_counter()
     say("reading imu.csv and gnss.csv")
-    log = read_generic_log(imu_path, gnss_path)
+    log = read_generic_log(imu_path, gnss_path, time_scale)
+    return _georeference_events(log, events_path, cfg, say, start,
+                                _EventsClock(time_scale, Path(imu_path).name, bag=False))
+
+
+def process_bag(bag_path: Path | str, events_path: Path | str, cfg: ProcessingConfig,
+                progress: Progress | None = None, imu_topic: str | None = None,
+                gnss_topic: str | None = None, time_scale: str = "auto") -> ProcessResult:
+    """Georeference every exposure of ``events.csv`` (times on the bag's header.stamp clock [s]) from a ROS 1 or
+    ROS 2 bag's sensor_msgs/Imu and sensor_msgs/NavSatFix topics (:mod:`georef.io.rosbag`). An Emlid/RTKLIB
+    ``_events.pos`` is put on ``time_scale`` (:data:`georef.io.pos_time_scale.CHOICES`): ``auto`` is ``unix``,
+    a wall clock's stamps."""
+    from georef.io.rosbag import read_bag
+
+    _fusable_inputs(cfg, "a bag's IMU and GNSS")
+    say = progress or (lambda _step: None)
+    start = time.perf_counter()
+    say("reading the bag")
+    log = read_bag(bag_path, imu_topic, gnss_topic).to_pos_log()
+    return _georeference_events(log, events_path, cfg, say, start, _EventsClock(time_scale, "the bag's IMU", bag=True))
+
+
+@dataclass(frozen=True)
+class _EventsClock:
+    """How an events file's times reach the IMU's clock: ``time_scale`` for an RTKLIB/Emlid ``_events.pos``
+    (:data:`georef.io.pos_time_scale.CHOICES`), the IMU's name for messages, whether the IMU is a bag's (Unix s)."""
+
+    time_scale: str
+    imu_name: str
+    bag: bool
+
+
+def _fusable_inputs(cfg: ProcessingConfig, what: str) -> None:
+    if cfg.processing.method == "axis":
+        raise GeorefError(f"--method axis needs a POS unit's own roll, pitch and yaw (POS.txt); {what} are fused "
+                          "with rts, ekf or graph")
+
+
+def _georeference_events(log: PosLog, events_path: Path | str, cfg: ProcessingConfig, say: Progress,
+                         start: float, clock: _EventsClock) -> ProcessResult:
+    """Read the exposures of ``events_path`` on ``log``'s clock and georeference them. An _events.pos whose first
+    event lies past the midnight (of UTC, or of the GPS week) the IMU's first row lies before is counted from the
+    IMU's day, going on past 86400 s as the IMU's times do."""
+    from georef.io.pos_time_scale import read_events_on_imu_scale
+
+    frames = _output_frames(cfg)
+    image_names = ImageNames.parse(cfg.output.image_names) if cfg.output.image_names else None
     say("reading exposures")
-    exposures, names = read_events(events_path)
-    image_names = image_names or names
+    exposures, names = read_events_on_imu_scale(events_path, log.time, clock.time_scale, clock.imu_name,
+                                                bag=clock.bag)
     _shift_by_latency(exposures, cfg)
-    return _georeference(log, exposures, cfg, frames, image_names, say, time.perf_counter() - start)
+    return _georeference(log, exposures, cfg, frames, image_names or names, say, time.perf_counter() - start)
