@@ -37,9 +37,22 @@ from georef.config import (
 from georef.io.errors import GeorefError
 
 from .coercion import PlainCoercionCommand, PlainCoercionGroup
+from .handoffs import (
+    bag_or_files,
+    check_image_request,
+    check_sbet_request,
+    check_time_scale,
+    export_images,
+    fuse_day_start,
+    fuse_sbet_specs,
+    sbet_day_start,
+    write_fuse_outputs,
+)
 from .options import (
     AttitudeMethod,
+    BagFile,
     BatchMethod,
+    CameraClockOffset,
     ConfigFile,
     EventsFile,
     FuseMethod,
@@ -47,13 +60,19 @@ from .options import (
     GnssLatency,
     GnssLeverArm,
     GnssSigma,
+    GnssTopic,
+    ImagesFolder,
     ImuFile,
     ImuInstance,
     ImuPreset,
+    ImuTopic,
     MagneticDeclination,
     ProcessMethod,
     Quiet,
+    SbetRate,
     SummaryJson,
+    TimeScale,
+    UtcDate,
     Vehicle,
     Verbose,
     georef_version,
@@ -212,7 +231,7 @@ def process(
     pos: Annotated[Path | None, typer.Argument(
         help="The flight's log: an autopilot log (ArduPilot .bin or .log, PX4 .ulg; the format is read from the "
              "content, gzip too) with its camera events, or a POS unit's POS.txt (with CAMERA). Leave it out with "
-             "--imu/--gnss/--events.", show_default=False)] = None,
+             "--imu/--gnss/--events or --bag/--events.", show_default=False)] = None,
     camera: Annotated[Path | None, typer.Argument(
         help="POS.txt's exposure times: Kamera.txt, or the camera's raw log (needs --camera-utc-offset).",
         show_default=False)] = None,
@@ -220,6 +239,10 @@ def process(
     gnss: GnssFile = None,
     events: EventsFile = None,
     imu_instance: ImuInstance = None,
+    bag: BagFile = None,
+    imu_topic: ImuTopic = None,
+    gnss_topic: GnssTopic = None,
+    time_scale: TimeScale = "auto",
     imu_preset: ImuPreset = None,
     output: Annotated[Path | None, output_option("EO table to write (default eo.csv); a .kml, .geojson or geo.txt "
                                                  "name writes that format.")] = None,
@@ -228,7 +251,12 @@ def process(
                          "metashape/pix4d/odm need --crs. Default: from -o's extension, else csv.")] = None,
     export: Annotated[list[str] | None, typer.Option("--export", help="Also write FORMAT:FILE (metashape:ms.csv, "
                                                      "odm:geo.txt) or FILE with a .kml/.geojson/.csv extension; "
-                                                     "repeatable.")] = None,
+                                                     "repeatable. sbet:FILE writes the trajectory as an Applanix "
+                                                     "SBET with its smrmsg_<name>.out (docs/sbet.md).")] = None,
+    sbet_rate: SbetRate = None,
+    utc_date: UtcDate = None,
+    images: ImagesFolder = None,
+    camera_clock_offset: CameraClockOffset = None,
     height: Annotated[str | None, typer.Option("--height", help="Heights of the exports: ellipsoidal (WGS 84, "
                                                "default) or orthometric (EGM96 from PROJ's grid, or the vertical "
                                                "CRS of a compound --crs such as EPSG:3765+5773).")] = None,
@@ -267,7 +295,7 @@ def process(
     summary_json: SummaryJson = None,
 ) -> None:
     """The exterior orientation of every frame: from an autopilot log and its camera events, from POS.txt and
-    Kamera.txt, or from imu.csv, gnss.csv and events.csv.
+    Kamera.txt, from imu.csv, gnss.csv and events.csv, or from a ROS bag and events.csv.
 
     Exit code 4: the outputs are written but the quality checks failed (docs/qc.md).
     """
@@ -279,7 +307,8 @@ def process(
 
     _one_stdout(**{"-o": output, "--summary-json": summary_json})
     _not_stdout(report, "--report", "the report is written atomically as a file")
-    source = _process_inputs(pos, camera, imu, gnss, events, imu_instance)
+    source = _process_inputs(pos, camera, imu, gnss, events, imu_instance, bag, imu_topic, gnss_topic,
+                             plain(time_scale))
     cfg = load_configs(config)
     cfg = _with_options(
         cfg, method=("--method", plain(method)), imu_preset=("--imu-preset", imu_preset),
@@ -306,6 +335,11 @@ def process(
             output_format = format_of(output)
         except ExportError:
             output_format = "csv"
+    # --export images:DIR is a folder of photo copies, not a file of the EO table (georef/io/image_export.py)
+    if "images" in (export or []):
+        raise typer.BadParameter("--export images:DIR: name the folder for the geotagged copies of --images")
+    image_targets = [Path(text.partition(":")[2]) for text in export or [] if text.startswith("images:")]
+    export = [text for text in export or [] if not text.startswith("images:")]
     specs = [ExportSpec(format_of(output, output_format), output), *(parse_export(text) for text in export or [])]
     _one_stdout(**{"-o": output, "--summary-json": summary_json,
                    **{f"--export {text}": spec.path for text, spec in zip(export or [], specs[1:], strict=True)}})
@@ -315,6 +349,11 @@ def process(
 
         frames = OutputFrames(cfg.output.crs, cfg.output.height, cfg.output.vertical_crs)
     check_exports(specs, frames)
+    check_image_request(images, image_targets, camera_clock_offset, frames)
+    sbet_specs = [spec for spec in specs if spec.fmt == "sbet"]
+    if specs[0].fmt == "sbet":
+        raise typer.BadParameter("an SBET is the trajectory, not the EO table: write it with --export sbet:FILE")
+    check_sbet_request(sbet_specs, utc_date, sbet_rate, dated="log" in source.files)
     if cfg.output.image_names:
         ImageNames.parse(cfg.output.image_names)
     progress, step = _stage_progress(quiet, total=5 if report is not None else 4)
@@ -327,7 +366,16 @@ def process(
                                                                 ("imu_preset", imu_preset)) if option is not None}
     with progress if progress is not None else contextlib.nullcontext():
         result = source.run(cfg, step, given)
+        sbet_exports: list[Any] = []
+        sbet_day = sbet_day_start(result, utc_date) if sbet_specs else 0.0
+
         def write(spec: Any) -> None:
+            if spec.fmt == "sbet":
+                from georef.io.sbet import imu_rows_of_log, write_sbet
+
+                sbet_exports.append(write_sbet(result.nav, imu_rows_of_log(result.log), spec.path, sbet_day,
+                                               sbet_rate))
+                return
             write_target(spec.path, lambda path: write_export(result.columns, path, spec.fmt, frames=result.frames,
                                                               odm_angles=cfg.output.odm_angles))
 
@@ -336,6 +384,8 @@ def process(
             for spec in specs:
                 if not is_stdout(spec.path):
                     write(spec)
+            image_exports = [export_images(result, images, target, camera_clock_offset, utc_date)
+                             for target in image_targets]
             verdict = assess_result(result)
             if report is not None:
                 import shlex
@@ -356,14 +406,28 @@ def process(
                    for index, spec in enumerate(specs)]
         if report is not None:
             outputs.append({"what": "report", "format": "html", "path": str(report)})
+        outputs += [{"what": "export", "format": "smrmsg", "path": str(done.smrmsg_path)} for done in sbet_exports]
+        outputs += [{"what": "export", "format": "images", "path": str(done.target_dir)} for done in image_exports]
+        summary = result.summary()
+        if image_exports:
+            summary["images"] = [done.to_dict() for done in image_exports]
+        if sbet_exports:
+            summary["sbet"] = [{**done.summary(), "notes": done.notes} for done in sbet_exports]
         write_json(summary_json, run_document(
             "process", code, inputs={**source.files, "config": config}, settings=result.config.settings(),
-            outputs=outputs, summary=result.summary(), verdict=verdict))
+            outputs=outputs, summary=summary, verdict=verdict))
     if not quiet:
         messages = _messages(output, summary_json, *(spec.path for spec in specs[1:]))
         _print_summary(result, output, verbose, messages)
         for spec in specs[1:]:
             messages.print(f"also wrote {escape(spec.fmt)} -> {escape(str(spec.path))}", highlight=False)
+        for done in sbet_exports:
+            messages.print(f"also wrote smrmsg -> {escape(str(done.smrmsg_path))}", highlight=False)
+            for note in done.notes:
+                console.print(f"[yellow]warning:[/] {escape(note)}", highlight=False)
+        for done in image_exports:
+            for line in done.lines():
+                messages.print(escape(line), highlight=False)
         for warning in result.summary()["geodesy_warnings"]:
             console.print(f"[yellow]warning:[/] {escape(str(warning))}", highlight=False)
     _print_verdict(verdict, quiet)
@@ -379,12 +443,29 @@ class _Inputs:
 
 
 def _process_inputs(pos: Path | None, camera: Path | None, imu: Path | None, gnss: Path | None,
-                    events: Path | None, imu_instance: int | None) -> _Inputs:
-    """Which of the three ways in the arguments name (checked before anything is read but a log's first bytes)."""
+                    events: Path | None, imu_instance: int | None, bag: Path | None = None,
+                    imu_topic: str | None = None, gnss_topic: str | None = None,
+                    time_scale: str = "auto") -> _Inputs:
+    """Which of the four ways in the arguments name (checked before anything is read but a log's first bytes)."""
     from georef.io.logs import sniff
     from georef.pipeline import process as run_pos
-    from georef.pipeline import process_generic, process_log
+    from georef.pipeline import process_bag, process_generic, process_log
 
+    if bag is not None or imu_topic is not None or gnss_topic is not None:
+        bag_or_files(bag, imu_topic, gnss_topic, {"--imu": imu, "--gnss": gnss})
+        if pos is not None or camera is not None:
+            raise typer.BadParameter("--bag takes the place of a log: give either a log (and CAMERA for POS.txt) or "
+                                     "--bag and --events")
+        if events is None:
+            raise typer.BadParameter("--bag needs --events events.csv: the exposures, time [s] on the clock of the "
+                                     "bag's header.stamp (for a wall clock, Unix seconds)")
+        if imu_instance is not None:
+            raise typer.BadParameter("--imu-instance is for autopilot logs; a bag's IMU is chosen with --imu-topic")
+        check_time_scale(time_scale, {"--events": events})
+        # auto: a bag's stamps are Unix seconds for a wall clock, and an _events.pos goes there
+        return _Inputs({"bag": bag, "events": events},
+                       lambda cfg, step, _given: process_bag(bag, events, cfg, progress=step, imu_topic=imu_topic,
+                                                             gnss_topic=gnss_topic, time_scale=time_scale))
     if imu is not None or gnss is not None:
         if pos is not None or camera is not None:
             raise typer.BadParameter("--imu/--gnss take the place of a log: give either a log (and CAMERA for "
@@ -392,11 +473,20 @@ def _process_inputs(pos: Path | None, camera: Path | None, imu: Path | None, gns
         if imu is None or gnss is None or events is None:
             missing = ", ".join(n for n, v in (("--imu", imu), ("--gnss", gnss), ("--events", events)) if v is None)
             raise typer.BadParameter(f"generic inputs need --imu, --gnss and --events together; missing {missing}")
+        check_time_scale(time_scale, {"--gnss": gnss, "--events": events})
         return _Inputs({"imu": imu, "gnss": gnss, "events": events},
-                       lambda cfg, step, _given: process_generic(imu, gnss, events, cfg, progress=step))
+                       lambda cfg, step, _given: process_generic(imu, gnss, events, cfg, progress=step,
+                                                                 time_scale=time_scale))
     if pos is None:
         raise typer.BadParameter("give the flight's log (an autopilot log, or POS.txt with Kamera.txt), or --imu, "
                                  "--gnss and --events")
+    if time_scale != "auto":
+        raise typer.BadParameter(f"--time-scale {time_scale} is for --imu/--gnss/--events and --bag/--events with "
+                                 "an RTKLIB/Emlid .pos or _events.pos; a log's times are on its own UTC-of-day scale")
+    from georef.io.rosbag import is_bag
+
+    if is_bag(pos):
+        raise typer.BadParameter(f"{pos} is a ROS bag: give it as --bag, with the exposures as --events events.csv")
     if sniff(pos) is not None:
         if camera is not None:
             raise typer.BadParameter(f"{camera}: an autopilot log brings its own camera events; give other exposure "
@@ -739,9 +829,16 @@ def _write_drone(cfg: SimConfig, folder: Path, crs: str | None, quiet: bool) -> 
 @app.command(cls=PlainCoercionCommand)
 @_user_errors
 def fuse(
-    imu: Annotated[Path, typer.Option(help="imu.csv: time [s], gyro_x..z [rad/s], acc_x..z [m/s^2], body FRD.")],
-    gnss: Annotated[Path, typer.Option(help="gnss.csv: time [s], lat, lon [deg], height [m] of the antenna, "
-                                            "optional sigma_n, sigma_e, sigma_u [m].")],
+    imu: Annotated[Path | None, typer.Option(help="imu.csv: time [s], gyro_x..z [rad/s], acc_x..z [m/s^2], body "
+                                                  "FRD (or --bag).")] = None,
+    gnss: Annotated[Path | None, typer.Option(help="gnss.csv: time [s], lat, lon [deg], height [m] of the antenna, "
+                                                   "optional sigma_n, sigma_e, sigma_u [m] (or --bag); or an RTKLIB/"
+                                                   "Emlid .pos solution (recognised by its header; its times put on "
+                                                   "imu.csv's scale, see --time-scale).")] = None,
+    bag: BagFile = None,
+    imu_topic: ImuTopic = None,
+    gnss_topic: GnssTopic = None,
+    time_scale: TimeScale = "auto",
     output: Annotated[Path, output_option("Trajectory to write (traj.csv).")] = Path("traj.csv"),
     config: ConfigFile = None,
     method: FuseMethod = "rts",
@@ -751,22 +848,34 @@ def fuse(
     gnss_latency: GnssLatency = None,
     vehicle: Vehicle = None,
     magnetic_declination: MagneticDeclination = None,
+    export: Annotated[list[str] | None, typer.Option(
+        "--export", help="Also write sbet:FILE, the trajectory as an Applanix SBET with its smrmsg_<name>.out "
+                         "(docs/sbet.md); imu.csv and .pos times need --utc-date, a bag's stamps are Unix seconds "
+                         "(UTC).")] = None,
+    sbet_rate: SbetRate = None,
+    utc_date: UtcDate = None,
     quiet: Quiet = False,
     summary_json: SummaryJson = None,
 ) -> None:
-    """Fuse generic IMU and GNSS files into a trajectory (position, velocity, attitude with sigmas).
+    """Fuse generic IMU and GNSS files (or a ROS bag's IMU and GNSS topics) into a trajectory (position,
+    velocity, attitude with sigmas).
 
     Exit code 4: the trajectory is written but the quality checks failed (docs/qc.md).
     """
     from georef.fusion.ins import InsInputs, solve_ins
-    from georef.io.generic import read_gnss_csv, read_imu_csv, read_imu_heading_sources, write_trajectory_csv
+    from georef.io.generic import read_imu_csv, read_imu_heading_sources
     from georef.pipeline import solution_figures
     from georef.qc import assess
 
     from .summary import run_document
 
+    bag_or_files(bag, imu_topic, gnss_topic, {"--imu": imu, "--gnss": gnss})
+    time_scale = plain(time_scale)
+    check_time_scale(time_scale, {"--gnss": gnss})
     method = plain(method)
     _one_stdout(**{"-o": output, "--summary-json": summary_json})
+    sbet_specs = fuse_sbet_specs(export, output)
+    check_sbet_request(sbet_specs, utc_date, sbet_rate, dated=bag is not None)
     cfg = load_configs(config)
     cfg = _with_options(
         cfg, lever_arm_gnss=("--gnss-lever-arm", _triple(gnss_lever_arm, "--gnss-lever-arm", "metres")),
@@ -776,11 +885,23 @@ def fuse(
     progress, step = _stage_progress(quiet, total=3)
     with progress if progress is not None else contextlib.nullcontext():
         step("reading inputs")
-        time_s, gyro, accel, _ = read_imu_csv(imu)
-        mag, autopilot_yaw = read_imu_heading_sources(imu)
-        fixes = read_gnss_csv(gnss)
+        from_pos = False
+        if bag is not None:
+            from georef.io.rosbag import read_bag
+
+            read = read_bag(bag, imu_topic, gnss_topic)
+            time_s, gyro, accel, fixes, mag, autopilot_yaw = read.time, read.gyro, read.accel, read.gnss, None, None
+            kind, files = read.kind, {"bag": bag, "imu_topic": read.imu_topic, "gnss_topic": read.gnss_topic}
+        else:
+            from georef.io.pos_time_scale import is_solution_file, read_gnss_on_imu_scale
+
+            time_s, gyro, accel, _ = read_imu_csv(imu)
+            mag, autopilot_yaw = read_imu_heading_sources(imu)
+            fixes = read_gnss_on_imu_scale(gnss, time_s, time_scale, imu.name)
+            from_pos = is_solution_file(gnss)
+            kind, files = ("imu.csv + RTKLIB .pos" if from_pos else "imu.csv + gnss.csv"), {"imu": imu, "gnss": gnss}
         step(f"fusing ({method})")
-        inputs = InsInputs(time=time_s, gyro=gyro, accel=accel, gnss=fixes, source=str(imu), mag=mag,
+        inputs = InsInputs(time=time_s, gyro=gyro, accel=accel, gnss=fixes, source=str(bag or imu), mag=mag,
                            autopilot_yaw=autopilot_yaw)
         if method == "graph":
             from georef.fusion.graph import solve_graph_inputs
@@ -789,8 +910,9 @@ def fuse(
         else:
             nav = solve_ins(inputs, InsSettings.of(cfg), smooth=method == "rts")
         step("writing trajectory")
-        write_target(output, lambda path: write_trajectory_csv(nav, path))
-    verdict = assess(nav, cfg=cfg, kind="imu.csv + gnss.csv")
+        sbet_exports = write_fuse_outputs(nav, gyro, accel, output, sbet_specs, sbet_rate,
+                                           fuse_day_start(utc_date, bag is not None, time_s) if sbet_specs else 0.0)
+    verdict = assess(nav, cfg=cfg, kind=kind)
     code = 0 if verdict.passed else EXIT_QC_FAILED
     used = int((nav.gnss.status >= 1).sum())
     rejected = nav.gnss.rejected_lines
@@ -798,9 +920,14 @@ def fuse(
     if summary_json is not None:
         summary = {"method": method, "trajectory_rows": int(nav.valid.sum()), "gnss_fixes": len(fixes),
                    "gnss_used": used, "gnss_rejected_lines": rejected, **figures}
+        outputs = [{"what": "trajectory", "format": "csv", "path": str(output)}]
+        for done in sbet_exports:
+            outputs += [{"what": "export", "format": "sbet", "path": str(done.sbet_path)},
+                        {"what": "export", "format": "smrmsg", "path": str(done.smrmsg_path)}]
+            summary.setdefault("sbet", []).append({**done.summary(), "notes": done.notes})
         write_json(summary_json, run_document(
-            "fuse", code, inputs={"imu": imu, "gnss": gnss, "config": config}, settings=cfg.settings(),
-            outputs=[{"what": "trajectory", "format": "csv", "path": str(output)}], summary=summary, verdict=verdict))
+            "fuse", code, inputs={**files, "config": config}, settings=cfg.settings(),
+            outputs=outputs, summary=summary, verdict=verdict))
     if not quiet:
         to = _messages(output, summary_json)
         named = f" (lines {', '.join(map(str, rejected[:10]))})" if rejected else ""
@@ -808,6 +935,17 @@ def fuse(
                  f"{used} used, {len(rejected)} rejected{named}", highlight=False, soft_wrap=True)
         for what, text in _filter_rows(figures):
             to.print(f"{what}: {text}", highlight=False, soft_wrap=True)
+        for done in sbet_exports:
+            to.print(f"also wrote sbet -> {escape(str(done.sbet_path))}, smrmsg -> {escape(str(done.smrmsg_path))}",
+                     highlight=False, soft_wrap=True)
+            for note in done.notes:
+                to.print(f"[yellow]warning:[/] {escape(note)}", highlight=False, soft_wrap=True)
+        if bag is not None:  # what the bag reader converted or skipped: never silent
+            for notice in read.all_notices:
+                to.print(f"[yellow]notice:[/] {escape(str(notice))}", highlight=False, soft_wrap=True)
+        elif from_pos:  # what the .pos reader converted, floored or dropped, and the time scale it chose
+            for notice in fixes.notices:
+                to.print(f"[yellow]notice:[/] {escape(str(notice))}", highlight=False, soft_wrap=True)
     _print_verdict(verdict, quiet)
     if code:
         raise typer.Exit(code=code)
@@ -866,7 +1004,8 @@ def batch(
         "--export", help="Also write, in every flight's folder, FORMAT (metashape, pix4d, odm, parge, geojson, kml; "
                          "default file names metashape.csv, pix4d.csv, geo.txt, parge.txt, stations.geojson, "
                          "stations.kml) or FORMAT:NAME; repeatable. CRS, heights and image names come from each "
-                         "flight's flight.toml.")] = None,
+                         "flight's flight.toml. images[:NAME] writes geotagged copies of each flight's photos "
+                         "(its folder images/, or the manifest's images column) into NAME (default images).")] = None,
     shared_calibration: Annotated[bool, typer.Option(
         "--shared-calibration", help="With --method graph: estimate one GNSS lever arm [m, body] and time offset "
                                      "[s] from all flights (one installation), re-solve every flight with it, and "
@@ -888,8 +1027,16 @@ def batch(
     _not_stdout(output, "-o", "batch writes a folder of files")
     from georef.io.exports import parse_folder_export
 
-    specs = [parse_folder_export(text) for text in export or []]  # checked before any flight runs
-    exports = tuple((spec.fmt, str(spec.path)) for spec in specs)
+    # images[:NAME]: geotagged copies of each flight's photos (<flight>/images/) in <out>/<flight>/NAME (images)
+    images = tuple(("images", text.partition(":")[2] or "images") for text in export or []
+                   if text == "images" or text.startswith("images:"))
+    for _, name in images:
+        if Path(name).name != name or name in (".", ".."):
+            raise typer.BadParameter(f"--export images:{name}: give a plain folder name; each flight's copies go in "
+                                     "its own folder")
+    specs = [parse_folder_export(text) for text in export or []  # checked before any flight runs
+             if not (text == "images" or text.startswith("images:"))]
+    exports = tuple((spec.fmt, str(spec.path)) for spec in specs) + images
     if shared_calibration and plain(method) != "graph":
         raise typer.BadParameter("needs --method graph (the calibration is a variable of the factor graph)",
                                  param_hint="--shared-calibration")
@@ -1028,11 +1175,84 @@ def _cell(value: Any) -> str:
     return str(value)
 
 
+@app.command("calibrate-boresight", cls=PlainCoercionCommand)
+@_user_errors
+def calibrate_boresight(
+    eo: Annotated[Path, typer.Argument(help="The EO table georef process wrote (eo.csv; with an image column, "
+                                            "--image-names), processed with the mounting of --config / "
+                                            "--boresight / --camera-lever-arm.")],
+    adjusted: Annotated[Path, typer.Argument(help="The block's adjusted cameras (bundle adjustment with ground "
+                                                  "control): a Metashape camera export (CSV with X, Y, Z [m] and "
+                                                  "Omega, Phi, Kappa [deg]; the _est columns when present), Pix4D's "
+                                                  "calibrated_external_camera_parameters.txt or ODM's "
+                                                  "odm_report/shots.geojson.")],
+    crs: Annotated[str, typer.Option(help="Projected CRS the block was adjusted in (its X, Y in metres), e.g. "
+                                          "EPSG:32633; the photos' ω, φ, κ refer to its grid north.")],
+    adjusted_format: Annotated[str | None, typer.Option(
+        "--format", help="metashape, pix4d or odm (default: odm for .geojson/.json, pix4d for "
+                         "*calibrated_external*, else metashape).")] = None,
+    config: ConfigFile = None,
+    boresight: Annotated[str | None, typer.Option(
+        help="The boresight roll,pitch,yaw [deg] the EO was processed with (default: --config's).")] = None,
+    camera_lever_arm: Annotated[str | None, typer.Option(
+        help="The camera lever arm x,y,z [m, body: x forward, y right, z down] the EO was processed with "
+             "(default: --config's).")] = None,
+    ellipsoidal: Annotated[bool, typer.Option(
+        "--ellipsoidal-heights", help="Compare the block's heights with the EO's ellipsoidal height even when the "
+                                      "EO has height_orthometric (only the not-estimated vertical terms change).")
+    ] = False,
+    process_summary: Annotated[Path | None, typer.Option(
+        help="The --summary-json of the georef process run that wrote the EO table: its accelerometer-bias sigma "
+             "[m/s^2] over g is the sigma of the INS tilt fixed in the body frame in the roll and pitch sigmas "
+             "[deg]. Without it those sigmas are conservative (bounded by the EO's tilt sigma).")] = None,
+    output: Annotated[Path, output_option("calibration.toml to write: [mounting] boresight [deg] and "
+                                          "lever_arm_camera [m] for georef process --config.", stdout=False)
+                      ] = Path("calibration.toml"),
+    quiet: Quiet = False,
+    summary_json: SummaryJson = None,
+) -> None:
+    """Calibrate the camera boresight [deg] and lever arm [m] from a block adjusted with ground control.
+
+    Per photo the EO's camera attitude and position are compared with the adjusted ones; strips (straight runs)
+    give the estimate, its sigma includes the INS's flight-constant yaw error and its body-fixed tilt (the
+    accelerometer-bias sigma of --process-summary over g; without it a conservative bound), and a jackknife over
+    strips checks it. The lever arm's x (trigger latency) and z (vertical datum) are reported, not applied; y is
+    applied only with strips in opposite headings and when over twice its sigma. Exit code 0: written; 2: bad
+    input, no matching names, too few photos or strips; 4: written but weak or inconsistent (fewer than 3 strips,
+    one heading, a failed chi-square or jackknife check).
+    """
+    from .calibrate import print_result, run
+
+    _not_stdout(output, "-o", "calibrate-boresight writes calibration.toml")
+    cfg = _with_options(load_configs(config),
+                        boresight=("--boresight", _triple(boresight, "--boresight", "deg")),
+                        lever_arm_camera=("--camera-lever-arm", _triple(camera_lever_arm, "--camera-lever-arm",
+                                                                        "m")))
+    result = run(eo, adjusted, adjusted_format, crs, cfg.mounting.boresight, cfg.mounting.lever_arm_camera, output,
+                 ellipsoidal, process_summary)
+    code = EXIT_QC_FAILED if result.weak else 0
+    if summary_json is not None:
+        write_json(summary_json, {"command": "calibrate-boresight", "exit_code": code, "georef_version":
+                                  georef_version(), "inputs": {"eo": str(eo), "adjusted": str(adjusted),
+                                                               "config": [str(p) for p in config or []], "crs": crs,
+                                                               "process_summary": None if process_summary is None
+                                                               else str(process_summary)},
+                                  "figures": result.summary(),
+                                  "outputs": [{"what": "calibration config", "format": "toml", "path": str(output)}]})
+    if not quiet:
+        print_result(result, output, _messages(summary_json), console)
+    elif result.weak:
+        for problem in result.problems:
+            console.print(f"[bold red]weak:[/] {escape(problem)}", highlight=False)
+    if code:
+        raise typer.Exit(code=code)
+
+
 @app.command(cls=PlainCoercionCommand)
 @_user_errors
 def info(
-    pos: Annotated[Path, typer.Argument(help="The log: an autopilot log (ArduPilot .bin/.log, PX4 .ulg, gzip too) "
-                                             "or a POS unit's POS.txt.")],
+    pos: Annotated[Path, typer.Argument(help="The log: an autopilot log (ArduPilot .bin/.log, PX4 .ulg, gzip too), "
+                                             "a POS unit's POS.txt, or a ROS bag (.bag, a ROS 2 bag's folder).")],
     config: ConfigFile = None,
     gnss_rate: Annotated[float | None, typer.Option(help="GNSS fix rate in Hz, if known (default: the config's, "
                                                          "else 1).")] = None,
@@ -1043,7 +1263,11 @@ def info(
     columns found."""
     from georef.io.logs import read_flight_log, sniff
     from georef.io.pos import read_pos
+    from georef.io.rosbag import describe_bag, is_bag
 
+    if is_bag(pos):  # a ROS bag: its topics, and which ones --bag reads
+        _print_rows(str(pos), describe_bag(pos))
+        return
     if sniff(pos) is not None:
         from georef.io.logs.flightlog import describe
 

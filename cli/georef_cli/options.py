@@ -26,6 +26,9 @@ FUSE_METHODS = ("rts", "ekf", "graph")
 ATTITUDE_METHODS = ("complementary", "kf", "mekf", "ukf")
 #: the ``--vehicle`` values (non-holonomic constraints)
 VEHICLES = ("auto", "ground", "air")
+#: the ``--time-scale`` values: georef.io.pos_time_scale.CHOICES, written out here because importing that module
+#: imports pyproj (0.3 s on every command)
+TIME_SCALES = ("auto", "utc-day", "gps-week", "unix")
 
 
 def georef_version() -> str:
@@ -64,6 +67,7 @@ Method = choice("Method", METHODS)
 FuseMethodChoice = choice("FuseMethod", FUSE_METHODS)
 AttitudeMethodChoice = choice("AttitudeMethod", ATTITUDE_METHODS)
 VehicleChoice = choice("Vehicle", VEHICLES)
+TimeScaleChoice = choice("TimeScale", TIME_SCALES)
 
 
 ImuPreset = Annotated[str | None, typer.Option(
@@ -74,11 +78,20 @@ ImuFile = Annotated[Path | None, typer.Option(
                   "mag_x..z and an autopilot's roll, pitch, yaw [deg] (docs/formats.md).")]
 GnssFile = Annotated[Path | None, typer.Option(
     "--gnss", help="gnss.csv: time [s, imu.csv's clock], lat, lon [deg], height [m, ellipsoidal] of the antenna, "
-                   "optional sigma_n, sigma_e, sigma_u [m].")]
+                   "optional sigma_n, sigma_e, sigma_u [m]; or an RTKLIB/Emlid .pos solution (recognised by its "
+                   "header; its times put on imu.csv's scale, see --time-scale; docs/rtklib.md).")]
 EventsFile = Annotated[Path | None, typer.Option(
     "--events", help="events.csv: the exposures, time [s, the IMU's clock: imu.csv's, or UTC seconds of the day "
                      "for an autopilot log] and an optional image name; replaces an autopilot log's own camera "
-                     "events.")]
+                     "events. An Emlid/RTKLIB demo5 _events.pos (recognised by its header) has its events' times "
+                     "put on the IMU's scale (--time-scale; with --bag, Unix seconds).")]
+TimeScale = Annotated[TimeScaleChoice, typer.Option(  # type: ignore[valid-type]
+    "--time-scale", case_sensitive=False,
+    help="The IMU's clock, onto which an RTKLIB/Emlid .pos and _events.pos are put [s]: utc-day (UTC seconds of "
+         "the day, going on past 86400 after midnight), gps-week (GPS seconds of the week, no leap seconds), unix "
+         "(UTC seconds since 1970-01-01), or auto: the one of these on which the file's times overlap imu.csv's "
+         "(on a Sunday, when the first two differ only by the leap seconds, it is an error asking for the scale); "
+         "with --bag, auto is unix. docs/rtklib.md.")]
 ImuInstance = Annotated[int | None, typer.Option(
     "--imu-instance", help="Which of an autopilot log's IMUs to use (default the primary: ArduPilot's IMU 0, "
                                   "PX4's sensor_combined; N picks ArduPilot's IMU N or PX4's vehicle_imu N); "
@@ -123,3 +136,25 @@ Vehicle = Annotated[VehicleChoice | None, typer.Option(  # type: ignore[valid-ty
     case_sensitive=False,
     help="auto (non-holonomic constraints when the motion shows a ground vehicle; default), ground (always) "
          "or air (never).")]
+SbetRate = Annotated[float | None, typer.Option(
+    "--sbet-rate", help="Record rate of --export sbet:FILE in Hz (the first IMU row of every 1/rate s of GPS time; "
+                        "at most the IMU's rate). Default: every IMU row with a solution.")]
+UtcDate = Annotated[str | None, typer.Option(
+    "--utc-date", help="UTC date YYYY-MM-DD of the log's time of day (POS.txt, imu.csv and events.csv carry none; "
+                       "an autopilot log's own is used): --export sbet needs it for GPS seconds of the week; "
+                       "image copies take it for their GPS date stamp.")]
+BagFile = Annotated[Path | None, typer.Option(
+    "--bag", help="A ROS 1 .bag file or a ROS 2 bag's folder (metadata.yaml with .db3 or .mcap): its sensor_msgs/Imu "
+                  "[rad/s, m/s^2, REP 103 forward-left-up] and sensor_msgs/NavSatFix [deg, m above the WGS 84 "
+                  "ellipsoid] in place of --imu and --gnss, on header.stamp's clock [s] (docs/rosbags.md).")]
+ImuTopic = Annotated[str | None, typer.Option(
+    "--imu-topic", help="The bag's sensor_msgs/Imu topic to read (default: the only one).")]
+GnssTopic = Annotated[str | None, typer.Option(
+    "--gnss-topic", help="The bag's sensor_msgs/NavSatFix topic to read (default: the only one).")]
+ImagesFolder = Annotated[Path | None, typer.Option(
+    "--images", help="Folder of the flight's photos (.jpg, .jpeg, .tif, .tiff) for --export images:DIR, which "
+                     "writes geotagged copies of them into DIR (the photos are only read; docs/images.md).")]
+CameraClockOffset = Annotated[float | None, typer.Option(
+    "--camera-clock-offset", help="Camera clock minus UTC in seconds (e.g. 7200.25 for a clock on UTC+2 running "
+                                  "0.25 s fast), for matching photos to exposures by capture time when the "
+                                  "triggering is too regular to find it (default: estimated and reported).")]
