@@ -191,6 +191,8 @@ def run_flight(job: tuple[str, int, str, str, bool]) -> dict[str, Any]:
             record[f"inside2_outage_{component}"] = _finite(np.mean(np.abs(z[in_outage]) <= 2.0)) \
                 if in_outage.any() else None
         record["qc_passed"], record["qc"] = _qc_passed(result)
+        # the attitude check's ratios (forward filter against the smoother): how far legitimate flights go
+        record["sigma_scale_attitude"] = result.summary().get("sigma_scale_attitude")
         processing_section = getattr(result.config, "processing", None)
         record["method"] = getattr(processing_section, "method", None)
     except Exception as exc:  # a flight that fails is recorded with its error; the run goes on
@@ -304,6 +306,14 @@ def summarise(records: list[dict[str, Any]], kinds: list[str]) -> None:
     qc_failed = [r for r in records if not r["error"] and r.get("qc_passed") is False]
     for r in qc_failed:
         print(f"QC failed: {r['kind']} seed {r['seed']}: {r['qc']}")
+    print("attitude check (forward filter against the smoother, RMS ratio, worst of roll/pitch/yaw; fails beyond "
+          "20): median / max per kind")
+    for kind in kinds:
+        worst = [max(v for v in r["sigma_scale_attitude"] if v is not None) for r in records
+                 if r["kind"] == kind and not r["error"] and r.get("sigma_scale_attitude")
+                 and any(v is not None for v in r["sigma_scale_attitude"])]
+        if worst:
+            print(f"  {kind:<21} {np.median(worst):6.2f} / {max(worst):6.2f}  ({len(worst)} flights)")
 
 
 def compare(records: list[dict[str, Any]], old_path: Path, kinds: list[str]) -> None:

@@ -33,6 +33,7 @@ The advice names what the user holds (``kind``: POS.txt, an autopilot log, imu.c
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -102,6 +103,10 @@ HELD_WINDOW_S = 15.0
 #: the smoothed roll, the one delivered, was 1.7 times its sigma (docs/qc.md)
 ATTITUDE_SCALE_NOTE = 2.0
 ATTITUDE_SCALE_LOW = 0.3
+#: beyond this the forward filter and the smoother disagree by far more than any start transient measured (the
+#: hover start's 5.0 above): an attitude that does not hold together at all (an IMU mounted or published upside
+#: down read 587), so the check fails
+ATTITUDE_SCALE_FAIL = 20.0
 
 AXES = ("x", "y", "z")
 AXIS_WORDS = {"x": "forward", "y": "right", "z": "down"}
@@ -217,9 +222,10 @@ def effective_count(time: np.ndarray, innovation: np.ndarray, variance: np.ndarr
     return max(int(round(n * (1.0 - r) / (1.0 + r))), min(n, NIS_MIN_FIXES))
 
 
-def check_innovations(nav: NavSolution) -> list[Check]:
+def check_innovations(nav: NavSolution, kind: str = "POS.txt") -> list[Check]:
     """``innovations`` (mean NIS of the used fixes against chi-square(3 n)) and ``innovation bursts`` (the worst
-    ``NIS_WINDOW_S`` window). Full-state filters only (their NIS uses the full innovation covariance)."""
+    ``NIS_WINDOW_S`` window). Full-state filters only (their NIS uses the full innovation covariance). ``kind``:
+    what the inputs were, for the advice."""
     if nav.diagnostics is None:
         return []
     nis = np.asarray(nav.diagnostics.nis, float)
@@ -239,9 +245,10 @@ def check_innovations(nav: NavSolution) -> list[Check]:
                                          if effective < n else ")")
     if value > hi:
         checks = [Check("innovations", FAIL, f"{figures}: the fixes disagree with the navigation more than the "
-                        "fitted model explains. Look for a wrong lever arm (--gnss-lever-arm), GNSS time tags off "
-                        "(--gnss-latency), fixes of mixed quality (float/DGPS), or a vehicle the model does not "
-                        "fit (--vehicle); the innovations plot of --report shows where.")]
+                        f"fitted model explains. {_time_scale_advice(kind)}Look for a wrong lever arm "
+                        "(--gnss-lever-arm), GNSS time tags off (--gnss-latency), fixes of mixed quality "
+                        "(float/DGPS), or a vehicle the model does not fit (--vehicle); the innovations plot of "
+                        "--report shows where.")]
     elif value < lo:
         # a filter whose fixes agree better than their sigmas say is pessimistic, not wrong: noted; whether its
         # answer is good is for the held-out fixes to say
@@ -324,9 +331,10 @@ def check_held_out(nav: NavSolution, kind: str = "POS.txt") -> Check | None:
 def check_attitude_scale(nav: NavSolution, kind: str = "POS.txt") -> Check | None:
     """``attitude sigmas``: the forward filter's attitude against the smoothed one, over the sigma their
     difference should have (:meth:`~georef.fusion.solution.ForwardSeparation.sigma_scale`). Warns when the RMS
-    ratio of roll, pitch or yaw exceeds ATTITUDE_SCALE_NOTE, and notes sigmas too large; never fails (see
-    ATTITUDE_SCALE_NOTE). What it cannot see: an error the forward filter and the smoother share (a bias the
-    motion never separates), which the held-out fixes and the innovations do not see either."""
+    ratio of roll, pitch or yaw exceeds ATTITUDE_SCALE_NOTE, and notes sigmas too large; fails only beyond
+    ATTITUDE_SCALE_FAIL (a start transient must not fail a usable flight, see ATTITUDE_SCALE_NOTE). What it
+    cannot see: an error the forward filter and the smoother share (a bias the motion never separates), which the
+    held-out fixes and the innovations do not see either."""
     if nav.forward is None or nav.diagnostics is None:
         return None
     _, scale = nav.forward.sigma_scale()
@@ -336,21 +344,45 @@ def check_attitude_scale(nav: NavSolution, kind: str = "POS.txt") -> Check | Non
     figures = ("forward filter against the smoother, separation over its sigma (RMS): "
                + ", ".join(f"{n} {v:.2f}" for n, v in zip(names, scale, strict=True) if np.isfinite(v)))
     worst = float(np.nanmax(scale))
+    if worst > ATTITUDE_SCALE_FAIL:
+        return Check("attitude sigmas", FAIL, f"{figures}: the forward filter and the smoother disagree by "
+                     f"{worst:.0f} times the sigma expected, far beyond a start transient: the attitude is not "
+                     "consistent with the IMU. Check the IMU's axes (forward-right-down in imu.csv; a bag's IMU "
+                     "must publish REP 103 forward-left-up) and its units (rad/s, m/s^2).")
     if worst > ATTITUDE_SCALE_NOTE:
         return Check("attitude sigmas", WARN, f"{figures}: the forward filter strays from the smoothed attitude by "
                      f"up to {worst:.1f} times the sigma expected; the angle sigmas may be too small there. "
-                     f"{_solution_advice(kind, nav.method)}")
+                     f"{_solution_advice(kind, nav.method, failing=False)}")
     if worst < ATTITUDE_SCALE_LOW:
         return Check("attitude sigmas", WARN, f"{figures}: the attitude sigmas are larger than the data show "
                      "(pessimistic, safe to use)")
     return Check("attitude sigmas", PASS, figures)
 
 
-def _solution_advice(kind: str, method: str = "rts") -> str:
-    """What to look at when the solution is worse than the fixes, for the inputs the user holds and the method."""
-    common = ("Look for a wrong GNSS lever arm (--gnss-lever-arm), GNSS time tags off (--gnss-latency), an IMU "
-              "preset that does not fit the hardware (--imu-preset), and the frames flagged in the EO table; the "
-              "report (--report) shows where the solution and the fixes part.")
+def _holds_solution_file(kind: str) -> bool:
+    """Whether the inputs (``kind``) hold an RTKLIB/Emlid .pos, whose times were put on the IMU's scale."""
+    return ".pos" in kind
+
+
+def _time_scale_advice(kind: str) -> str:
+    """For inputs holding a .pos: the time scale first. GPST and UTC differ by the leap seconds (18 s since 2017),
+    and an IMU on the other one puts every fix that far along the track: most fixes rejected, no heading."""
+    if not _holds_solution_file(kind):
+        return ""
+    return ("First check the time scale of the .pos against the IMU's clock: GPST and UTC differ by 18 s (the leap "
+            "seconds), and a .pos read on the wrong one puts every fix 18 s along the track, so that the fixes are "
+            "rejected or the heading is never found. The 'time scale' line says which scale was used; give the "
+            "IMU's with --time-scale (utc-day: UTC seconds of the day, gps-week: GPS seconds of the week, unix; "
+            "docs/rtklib.md). ")
+
+
+def _solution_advice(kind: str, method: str = "rts", failing: bool = True) -> str:
+    """What to look at when the solution is worse than the fixes, for the inputs the user holds and the method;
+    the time scale of a .pos first when a check fails (``failing``), not in a warning of a run that may be right."""
+    first = _time_scale_advice(kind) if failing else ""
+    common = (f"{first}Look for a wrong GNSS lever arm (--gnss-lever-arm), GNSS time tags off "
+              "(--gnss-latency), an IMU preset that does not fit the hardware (--imu-preset), and the frames flagged "
+              "in the EO table; the report (--report) shows where the solution and the fixes part.")
     if method == "ekf":
         # the forward filter bridges a gap on the IMU alone; the smoother also uses the fixes after it
         common = ("The forward filter (--method ekf) bridges a gap of the fixes on the IMU alone: use --method rts, "
@@ -362,8 +394,9 @@ def _solution_advice(kind: str, method: str = "rts") -> str:
     return common
 
 
-def check_rejected(nav: NavSolution, cfg: ProcessingConfig | None = None) -> Check | None:
-    """``rejected fixes``: the share of processed fixes (status 0 or 1) the gate rejected."""
+def check_rejected(nav: NavSolution, cfg: ProcessingConfig | None = None, kind: str = "POS.txt") -> Check | None:
+    """``rejected fixes``: the share of processed fixes (status 0 or 1) the gate rejected. ``kind``: what the
+    inputs were; with a .pos among them the advice names its time scale first."""
     status = nav.gnss.status
     processed = int((status >= 0).sum())
     if processed == 0:
@@ -380,6 +413,8 @@ def check_rejected(nav: NavSolution, cfg: ProcessingConfig | None = None) -> Che
                                                if len(rejected) > LIST_AT_MOST else "")
     advice = (". Check the GNSS quality at these times (multipath, float or autonomous fixes), --gnss-sigma, the "
               "lever arm (--gnss-lever-arm) and the time tags (--gnss-latency).")
+    if share > REJECTED_WARN and _holds_solution_file(kind):
+        advice = f". {_time_scale_advice(kind)}Then c{advice[3:]}"
     if share > REJECTED_FAIL:
         return Check("rejected fixes", FAIL, figures + advice)
     if share > REJECTED_WARN:
@@ -567,7 +602,8 @@ def check_heading(nav: NavSolution, kind: str = "POS.txt") -> Check | None:
     source = str(diagnostics.heading_source)
     sigma = float(np.degrees(diagnostics.alignment.heading_sigma))
     if source.startswith("none"):
-        return Check("heading", FAIL, f"{source}. The yaw of every frame is undetermined. {_heading_advice(kind)}")
+        return Check("heading", FAIL, f"{source}. The yaw of every frame is undetermined. "
+                     f"{_time_scale_advice(kind)}{_heading_advice(kind)}")
     if source.startswith(("magnetometer", "autopilot")):
         valid = np.asarray(nav.valid, bool)
         claimed = float(np.degrees(np.median(nav.att_sigma[valid, 2]))) if valid.any() else np.nan
@@ -591,8 +627,12 @@ def check_restarts(nav: NavSolution) -> Check | None:
     restarts = list(diagnostics.restarts)
     if not restarts:
         return Check("restarts", PASS, "the filter ran without a restart")
-    listed = "; ".join(f"at {r.time:.1f} s: {r.reason}" for r in restarts[:LIST_AT_MOST])
-    more = f"; and {len(restarts) - LIST_AT_MOST} more" if len(restarts) > LIST_AT_MOST else ""
+    # a restart that gets no further (the same fixes rejected again after re-aligning) repeats at one place: listed
+    # once with its count
+    places = Counter(f"at {r.time:.1f} s: {r.reason}" for r in restarts)
+    texts = [text if count == 1 else f"{text} ({count} times)" for text, count in places.items()]
+    listed = "; ".join(texts[:LIST_AT_MOST])
+    more = f"; and {len(texts) - LIST_AT_MOST} more" if len(texts) > LIST_AT_MOST else ""
     return Check("restarts", WARN, f"{len(restarts)} restart(s) after a divergence ({listed}{more}). Frames just "
                  "before and after them are less certain; look for bad GNSS fixes or IMU data there.")
 
@@ -652,10 +692,41 @@ def _frame_ids(table: Mapping[str, Any]) -> np.ndarray:
     return np.asarray(table["frame"]).astype(str)
 
 
-def check_frames(nav: NavSolution, table: Mapping[str, Any]) -> Check:
+def _clock_advice(kind: str, frame_times: np.ndarray, t0: float, t1: float) -> str:
+    """What to check when the exposures miss the navigation span, for the inputs the user holds (``kind``):
+    a raw camera log's UTC offset for POS.txt; for events.csv the clock its times must be on (a bag's stamps,
+    imu.csv's times, an autopilot log's clock), and the time scale of an _events.pos."""
+    if kind.startswith("ROS"):
+        advice = ("events.csv's times must be on the clock of the bag's header.stamp, which for a wall clock is "
+                  "Unix seconds (UTC since 1970-01-01)")
+        finite = frame_times[np.isfinite(frame_times)]
+        if len(finite) and t0 > 1e9 and float(np.max(finite)) < 1e9:
+            # seconds of a day or of a GPS week against Unix stamps: the day's (week's) start is missing
+            import datetime as dt
+
+            day = np.floor(t0 / 86400.0) * 86400.0
+            date = dt.datetime.fromtimestamp(day, tz=dt.UTC).date().isoformat()
+            advice += (": these exposure times are seconds of a day or a GPS week, not Unix time. For UTC seconds "
+                       f"of the bag's day add its 00:00 UTC, {day:.0f} s ({date}), to every time in events.csv "
+                       "(GPS seconds of the week: the week's start, less the 18 leap seconds), or give the "
+                       "receiver's _events.pos, which --time-scale places")
+        return (f"{advice}; also check --camera-time-offset (seconds) and that the files are of the same flight.")
+    if kind.startswith("imu.csv"):
+        return ("events.csv's times must be on imu.csv's clock (the same seconds as its time column); an "
+                "_events.pos is placed on it with --time-scale (utc-day, gps-week, unix; GPST and UTC differ by 18 "
+                "s). Also check --camera-time-offset (seconds) and that the files are of the same flight.")
+    if kind.startswith(("ArduPilot", "PX4")):
+        return ("the exposures must be on the log's own clock: events.csv (--events) in the log's UTC seconds of "
+                "the day, as the EO table's time column. Also check --camera-time-offset (seconds) and that the "
+                "files are of the same flight.")
+    return ("The camera's clock does not match the POS log's: check --camera-utc-offset (hours, raw camera logs), "
+            "--camera-time-offset (seconds) and that the two files are of the same flight.")
+
+
+def check_frames(nav: NavSolution, table: Mapping[str, Any], kind: str = "POS.txt") -> Check:
     """``frames``: exposures outside the navigation span. More than half (or all) fails: the camera's clock does
     not match the POS log's (a wrong UTC offset, a different day). ``table``: the EO table, as columns
-    (:func:`georef.eo.camera_eo_columns`) or a DataFrame."""
+    (:func:`georef.eo.camera_eo_columns`) or a DataFrame; ``kind``: what the inputs were, for the advice."""
     n = len(table["flag"])
     if n == 0:
         return Check("frames", FAIL, "the exposure file holds no frame")
@@ -690,13 +761,14 @@ def check_frames(nav: NavSolution, table: Mapping[str, Any]) -> Check:
     if count > OUTSIDE_FAIL_SHARE * n:
         # how far the exposures are off: their median time against the span's centre (a clock off by a UTC
         # offset shows as whole hours)
-        shift = float(np.median(np.asarray(table["time"], dtype=float)) - 0.5 * (t0 + t1))
+        times = np.asarray(table["time"], dtype=float)
+        shift = float(np.nanmedian(times) - 0.5 * (t0 + t1))
         where = "later" if shift > 0 else "earlier"
-        return Check("frames", FAIL, f"{count} of {n} frames lie outside {span} (frames {listed}); the exposures "
-                     f"lie {abs(shift):.0f} s ({abs(shift) / 3600:.2f} h) {where} than the navigation (median frame "
-                     "time against the span's centre). The camera's clock does not match the POS log's: check "
-                     "--camera-utc-offset (hours, raw camera logs), --camera-time-offset (seconds) and that the two "
-                     "files are of the same flight.")
+        frame_span = f"{np.nanmin(times):.1f} to {np.nanmax(times):.1f} s" if np.isfinite(times).any() else "none"
+        return Check("frames", FAIL, f"{count} of {n} frames lie outside {span} (frames {listed}; exposure times "
+                     f"{frame_span}); the exposures lie {abs(shift):.0f} s ({abs(shift) / 3600:.2f} h) {where} than "
+                     "the navigation (median frame time against the span's centre). "
+                     f"{_clock_advice(kind, times, t0, t1)}")
     return Check("frames", WARN, f"{count} of {n} frames lie outside {span} (frames {listed}): their rows are "
                  "written with empty values and flagged. Exposures before the log started or after it ended "
                  "cannot be georeferenced.")
@@ -734,12 +806,12 @@ def assess(nav: NavSolution, table: Mapping[str, Any] | None = None, cfg: Proces
     The full-state filters (``rts``, ``ekf``: ``nav.diagnostics`` set) get every check; ``axis`` and ``graph``
     the rejected fixes and, with a table, the frame checks.
     """
-    checks: list[Check | None] = [*check_innovations(nav), check_held_out(nav, kind), check_attitude_scale(nav, kind),
-                                  check_rejected(nav, cfg),
+    checks: list[Check | None] = [*check_innovations(nav, kind), check_held_out(nav, kind),
+                                  check_attitude_scale(nav, kind), check_rejected(nav, cfg, kind),
                                   check_lever_arm(nav), check_latency(nav, cfg), check_heading(nav, kind),
                                   check_restarts(nav), check_imu_gaps(nav), check_graph_separation(nav)]
     if table is not None:
-        checks += [check_frames(nav, table), check_gnss_ends(nav, table)]
+        checks += [check_frames(nav, table, kind), check_gnss_ends(nav, table)]
     return Verdict(tuple(c for c in checks if c is not None))
 
 

@@ -466,6 +466,9 @@ def test_markup_in_user_text_is_printed_as_is(sim_flight, tmp_path):
     attitude = RUNNER.invoke(app, ["attitude", "--imu", str(sim_flight / "imu.csv"), "--method", "kf", "-o",
                                    str(folder / "att[i].csv")])
     assert attitude.exit_code == 0 and "flight[red]/att[i].csv" in attitude.output
+    # emoji codes in user text stay text (rich turned --export images:x: into a cross mark)
+    emoji = RUNNER.invoke(app, ["info", str(tmp_path / "run:x:1" / "POS.txt")])
+    assert emoji.exit_code == 2 and "run:x:1/POS.txt" in emoji.output, emoji.output
 
 
 def test_evaluate_names_what_is_wrong(bundled_run, tmp_path):

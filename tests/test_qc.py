@@ -266,6 +266,12 @@ def test_heading_restarts_and_imu_gaps(clean):
     restarts = _by_name(_with(clean, restarts=[Restart(row=4000, time=24593.0, reason="4 GNSS fixes in a row "
                                                                                        "rejected")]))["restarts"]
     assert restarts.status == "warn" and "at 24593.0 s: 4 GNSS fixes in a row rejected" in restarts.message
+    # a restart that gets no further repeats at one place: listed once, with its count
+    stuck = [Restart(row=4000, time=24593.0, reason="4 GNSS fixes in a row rejected")] * 4 + \
+        [Restart(row=5000, time=24610.0, reason="IMU gap")]
+    repeated = _by_name(_with(clean, restarts=stuck))["restarts"].message
+    assert repeated.startswith("5 restart(s)") and repeated.count("24593.0") == 1, repeated
+    assert "at 24593.0 s: 4 GNSS fixes in a row rejected (4 times); at 24610.0 s: IMU gap" in repeated
     gaps = _by_name(_with(clean, imu_gaps=[(24550.0, 24551.5), (24600.0, 24600.3)]))["IMU gaps"]
     assert gaps.status == "warn" and gaps.message.startswith("2 span(s) without IMU data, 1.80 s in all")
     assert not _with(clean, heading_source="none: no heading").passed
@@ -352,3 +358,31 @@ def test_graph_lever_arm_check_is_contested_by_an_agreeing_ekf():
     blind = check_graph_lever_arm(_graph_nav(own, own_sigma, prior, prior_sigma, np.array([0.0, 0.0, -0.12]),
                                              np.array([3.0, 0.5, 0.8])))
     assert blind.status == "fail"
+
+
+@pytest.mark.slow
+def test_an_imu_read_with_two_axes_flipped_fails_the_attitude_check(tmp_path):
+    """An IMU published forward-right-down where forward-left-up is expected (or the reverse) reads with y and z
+    negated: roll turns upside down and the forward filter strays from the smoother by hundreds of sigmas. That is
+    a failed run (exit 4), not a warning beside "QC passed"; the same flight read the right way passes the check."""
+    from georef_cli.main import app
+    from typer.testing import CliRunner
+
+    runner = CliRunner()
+    folder = tmp_path / "drone"
+    made = runner.invoke(app, ["simulate", str(folder), "--vehicle", "multicopter", "--duration", "120", "--seed",
+                               "3", "--generic", "-q"])
+    assert made.exit_code == 0, made.output
+    imu = pd.read_csv(folder / "imu.csv")
+    for column in ("gyro_y", "gyro_z", "acc_y", "acc_z"):
+        imu[column] = -imu[column]
+    imu.to_csv(folder / "imu_flipped.csv", index=False, float_format="%.10g")
+    outputs = {}
+    for name in ("imu.csv", "imu_flipped.csv"):
+        run = runner.invoke(app, ["fuse", "--imu", str(folder / name), "--gnss", str(folder / "gnss.csv"),
+                                  "--config", str(folder / "flight.toml"), "-o", str(tmp_path / f"{name}.traj.csv")])
+        outputs[name] = run
+    flipped = outputs["imu_flipped.csv"]
+    assert flipped.exit_code == 4, flipped.output
+    assert re.search(r"QC fail attitude sigmas: .*disagree by \d+ times", flipped.output), flipped.output
+    assert "QC fail attitude sigmas" not in outputs["imu.csv"].output, outputs["imu.csv"].output

@@ -579,3 +579,28 @@ def test_bag_and_events_pos_on_different_clocks_is_exit_2_naming_both(car, tmp_p
     pd.DataFrame({"time": imu_time.iloc[[100, 200]]}).to_csv(events_csv, index=False, float_format="%.12g")
     idle = RUNNER.invoke(app, ["process", "--bag", str(bag), "--events", str(events_csv), "--time-scale", "unix"])
     assert idle.exit_code == 2 and "--events hold none" in " ".join(idle.output.split())
+
+
+def test_events_in_seconds_of_day_against_a_bags_unix_stamps_get_advice_for_bags(car, tmp_path):
+    """events.csv in UTC seconds of the day with a bag stamped in Unix seconds: every frame outside the navigation
+    span, exit 4 (as POS.txt and autopilot logs with a camera clock that misses the log). The advice must fit a bag
+    user: the exposure times are seconds of a day, not Unix time, both spans named; not --camera-utc-offset, which
+    is for POS.txt's raw camera logs."""
+    bag = car / "flight.bag"
+    if not bag.exists():
+        _bag_of(car, "ros1")
+    unix_day = 1_795_996_800.0  # 2026-11-30 00:00 UTC (20787 days after 1970-01-01), the car fixture's day
+    imu_time = pd.read_csv(car / "imu.csv")["time"]
+    times = np.arange(imu_time.iloc[0] + 10.0, imu_time.iloc[-1] - 5.0, 2.5).round(4) - unix_day
+    events = tmp_path / "events.csv"
+    pd.DataFrame({"time": times}).to_csv(events, index=False, float_format="%.12g")
+    result = RUNNER.invoke(app, ["process", "--bag", str(bag), "--events", str(events), "--config",
+                                 str(car / "flight.toml"), "-o", str(tmp_path / "eo.csv"), "-q"])
+    text = " ".join(result.output.split())
+    assert result.exit_code == 4, result.output
+    frames = text.split("QC fail frames:", 1)[1].split("QC ", 1)[0]
+    assert f"{len(times)} of {len(times)} frames lie outside the navigation span" in frames
+    assert f"exposure times {times.min():.1f} to {times.max():.1f} s" in frames
+    assert "seconds of a day or a GPS week, not Unix time" in frames and "header.stamp" in frames
+    assert f"add its 00:00 UTC, {unix_day:.0f} s (2026-11-30), to every time in events.csv" in frames
+    assert "--camera-utc-offset" not in frames

@@ -18,13 +18,16 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as dt
+import json
 import math
 import struct
+import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
 from georef_cli.main import app
+from PIL import Image
 from typer.testing import CliRunner
 
 from georef.config import load_configs
@@ -403,9 +406,9 @@ def test_sbet_times_of_a_real_ardupilot_log_are_its_gps_receivers(tmp_path):
 
 
 def _sbet_day(result, utc_date):
-    from georef_cli.handoffs import sbet_day_start
+    from georef_cli.handoffs import process_sbet_clock
 
-    return sbet_day_start(result, utc_date)
+    return process_sbet_clock(result, utc_date, {"log": Path("log171.bin")}, "auto")
 
 
 def test_method_axis_says_what_it_cannot_fill(demo):
@@ -420,3 +423,177 @@ def test_method_axis_says_what_it_cannot_fill(demo):
     assert any("no sensor biases" in note for note in records.notes)
     valid = result.nav.valid
     np.testing.assert_allclose(records.sbet[:, 14:17], np.radians(result.log.vector("gyro"))[valid])
+
+
+# --- the run's time scale and its date (trial of issue 25: a bag's Unix stamps, a .pos's dates) ------------------
+#: an RTKLIB 2.4.3 llh solution's header (as rnx2rtkp writes it, out-timesys GPST)
+RTKLIB_HEADER = [
+    "% program   : RTKLIB ver.2.4.3 b34",
+    "% (lat/lon/height=WGS84/ellipsoidal,Q=1:fix,2:float,3:sbas,4:dgps,5:single,6:ppp,ns=# of satellites)",
+    "%  GPST                  latitude(deg) longitude(deg)  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)  sdne(m)  "
+    "sdeu(m)  sdun(m) age(s)  ratio",
+]
+#: 00:00 UTC of DATE [POSIX s], and GPS seconds of the week there (DATE is a Saturday: 6 days + the leap seconds)
+DAY_POSIX = dt.datetime(DATE.year, DATE.month, DATE.day, tzinfo=dt.UTC).timestamp()
+SOW_AT_DATE = 6 * 86400 + LEAP_2024
+#: GPS week of DATE: (2024-05-18 - 1980-01-06) = 16204 days = 2314 weeks + 6 days
+WEEK_OF_DATE = 2314
+
+
+def _on_scale(nav, offset: float):
+    """``nav`` with ``offset`` [s] added to its UTC seconds of DATE (another scale's times of the same instants)."""
+    return dataclasses.replace(nav, time=np.asarray(nav.time, dtype=float) + offset)
+
+
+def test_the_scale_of_the_times_decides_the_date(demo):
+    """The same flight on UTC seconds of DATE, on Unix seconds and on GPS seconds of the week gives the same SBET
+    times. Unix stamps and GPS seconds of a week date themselves: no --utc-date needed, one that agrees accepted,
+    one that does not refused (the trial read a bag's Unix stamps as seconds of --utc-date's day: 5 days off)."""
+    from georef.io.pos_time_scale import ScaleChoice
+    from georef.io.sbet import run_clock
+
+    result, export, _, _ = demo
+    imu = imu_rows_of_log(result.log)
+    want = export.records.sbet[:, 0]
+    unix = _on_scale(result.nav, DAY_POSIX)
+    clock = run_clock(unix.time, None, bag=True, imu_label="the bag's IMU")
+    assert clock.scale == "utc-posix"
+    np.testing.assert_allclose(sbet_records(unix, imu, clock).sbet[:, 0], want, rtol=0, atol=1e-6)
+    assert run_clock(unix.time, "2024-05-18").scale == "utc-posix"  # the stamps' own date: accepted
+    with pytest.raises(SbetExportError, match="start on 2024-05-18"):
+        run_clock(unix.time, "2024-05-14", bag=True)
+    # GPS seconds of week 2314 (an imu.csv so logged, dated by a .pos whose fixes fell on that week)
+    gps = _on_scale(result.nav, SOW_AT_DATE)
+    choice = ScaleChoice(scale="gps-week", reference_utc=DAY_POSIX + 43200.0, times=np.array([]), notice=None)
+    clock = run_clock(gps.time, None, solution=choice, solution_name="--gnss solution.pos")
+    assert (clock.scale, clock.gps_week) == ("gps-week", WEEK_OF_DATE)
+    records = sbet_records(gps, imu, clock)
+    np.testing.assert_allclose(records.sbet[:, 0], gps.time[gps.valid], rtol=0, atol=1e-9)
+    assert records.gps_week == WEEK_OF_DATE and "GPS seconds of week 2314" in records.time_basis
+    np.testing.assert_allclose(records.sbet[:, 0], want, rtol=0, atol=1e-6)
+    with pytest.raises(SbetExportError, match="disagrees"):
+        run_clock(gps.time, "2024-05-19", solution=choice)
+    # UTC seconds of a day dated by a .pos: that day, and a --utc-date naming another refused
+    day_choice = ScaleChoice(scale="utc-day", reference_utc=DAY_POSIX + 3600.0, times=np.array([]), notice=None)
+    assert run_clock(result.nav.time, None, solution=day_choice).day_start_posix == DAY_POSIX
+    assert run_clock(result.nav.time, "2024-05-18", solution=day_choice).day_start_posix == DAY_POSIX
+    with pytest.raises(SbetExportError, match="disagrees with the .pos"):
+        run_clock(result.nav.time, "2024-05-19", solution=day_choice)
+
+
+def test_times_that_are_no_seconds_of_a_day_are_not_dated_by_utc_date(demo):
+    """Without a date of their own, times are taken as UTC seconds of --utc-date only where they can be: GPS
+    seconds of the week (542931 s) on a Saturday would be 5 days off, so they are refused with the way out."""
+    from georef.io.sbet import run_clock
+
+    result = demo[0]
+    with pytest.raises(SbetExportError, match="give --utc-date"):
+        run_clock(result.nav.time, None)
+    assert run_clock(result.nav.time, "2024-05-18").day_start_posix == DAY_POSIX
+    with pytest.raises(SbetExportError, match="not .0 - 172800 s.*RTKLIB/Emlid .pos"):
+        run_clock(result.nav.time + SOW_AT_DATE, "2024-05-18")
+
+
+def test_a_date_before_the_gps_epoch_is_refused(tmp_path):
+    from georef.io.sbet import parse_utc_date
+
+    assert parse_utc_date("1980-01-06") == dt.datetime(1980, 1, 6, tzinfo=dt.UTC).timestamp()
+    with pytest.raises(SbetExportError, match="before the GPS epoch"):
+        parse_utc_date("1980-01-05")
+    refused = RUNNER.invoke(app, ["process", str(DATA / "POS.txt"), str(DATA / "Kamera.txt"), "--config",
+                                  str(DATA / "flight.toml"), "-o", str(tmp_path / "eo.csv"), "--export",
+                                  f"sbet:{tmp_path / 'sbet_old.out'}", "--utc-date", "1975-01-01", "-q"])
+    assert refused.exit_code == 2 and "before the GPS epoch" in refused.output
+    assert not any(tmp_path.iterdir())
+
+
+def _pos_file(gnss_csv: Path, out: Path) -> Path:
+    """gnss.csv (UTC seconds of DATE) as an RTKLIB solution in GPST calendar time, DGPS, the csv's sigmas."""
+    import pandas as pd
+
+    lines = list(RTKLIB_HEADER)
+    for r in pd.read_csv(gnss_csv).itertuples():
+        t = dt.datetime(DATE.year, DATE.month, DATE.day) + dt.timedelta(seconds=float(r.time) + LEAP_2024)
+        lines.append(f"{t:%Y/%m/%d %H:%M:%S}.{round(t.microsecond / 1000):03d}   {r.lat:12.9f}  {r.lon:13.9f}  "
+                     f"{r.height:9.4f}   4  9  {r.sigma_n:7.4f}  {r.sigma_e:7.4f}  {r.sigma_u:7.4f}   0.0000   "
+                     "0.0000   0.0000   0.00    0.0")
+    out.write_text("\n".join(lines) + "\n")
+    return out
+
+
+@pytest.fixture(scope="module")
+def sim60(tmp_path_factory) -> Path:
+    """A 60 s simulated flight's generic files (UTC seconds of day), its gnss.csv also as solution.pos of DATE."""
+    folder = tmp_path_factory.mktemp("sbet_sim") / "sim"
+    made = RUNNER.invoke(app, ["simulate", str(folder), "--duration", "60", "--seed", "4", "--generic", "-q"])
+    assert made.exit_code == 0, made.output
+    _pos_file(folder / "gnss.csv", folder / "solution.pos")
+    return folder
+
+
+def test_fuse_with_a_pos_takes_its_date(sim60, tmp_path):
+    """fuse --gnss solution.pos: the .pos dates the flight (the trial was refused without --utc-date, and shifted
+    86400 s with a wrong one, exit 0); a --utc-date naming another day is exit 2 and nothing written."""
+    import pandas as pd
+
+    common = ["fuse", "--imu", str(sim60 / "imu.csv"), "--gnss", str(sim60 / "solution.pos"), "--config",
+              str(sim60 / "flight.toml"), "-o", str(tmp_path / "traj.csv"), "-q"]
+    wrong = RUNNER.invoke(app, [*common, "--export", f"sbet:{tmp_path / 'sbet_w.out'}", "--utc-date", "2024-05-19"])
+    assert wrong.exit_code == 2 and "disagrees with --gnss solution.pos" in wrong.output, wrong.output
+    assert not any(tmp_path.iterdir())
+    summary = tmp_path / "s.json"
+    done = RUNNER.invoke(app, [*common, "--export", f"sbet:{tmp_path / 'sbet_p.out'}", "--summary-json",
+                               str(summary)])
+    assert done.exit_code in (0, 4), done.output
+    table = pd.read_csv(tmp_path / "traj.csv")
+    raw = np.fromfile(tmp_path / "sbet_p.out", dtype=SBET_DTYPE)
+    assert len(raw) == len(table) > 1000
+    np.testing.assert_allclose(raw["time"], expected_time_of_week(table["time"].to_numpy(), DATE), atol=1e-5)
+    import json
+
+    sbet = json.loads(summary.read_text())["summary"]["sbet"][0]
+    assert sbet["sbet_gps_week"] == WEEK_OF_DATE and "dated by the dates of --gnss solution.pos" in \
+        sbet["sbet_time_basis"]
+
+
+def test_bag_stamps_are_unix_seconds_for_process_and_fuse(sim60, tmp_path):
+    """process --bag --export sbet needs no --utc-date (the trial refused it, asking for one), and a --utc-date
+    that is not the stamps' date is refused (the trial read the stamps as seconds of it, exit 0)."""
+    import pandas as pd
+    from test_rosbag import csv_to_bag_rows, write_bag
+
+    for name in ("imu.csv", "gnss.csv"):  # a ROS wall clock: Unix seconds of DATE
+        table = pd.read_csv(sim60 / name)
+        table["time"] = np.round(table["time"] + DAY_POSIX, 4)
+        table.to_csv(tmp_path / name, index=False, float_format="%.10f")
+    camera = pd.read_csv(sim60 / "Kamera.txt", sep="\t")
+    exposures = (camera["Time"] + camera["Milliseconds"] / 1000.0).to_numpy() + DAY_POSIX
+    events = tmp_path / "events.csv"
+    names = [f"IMG_{i + 1:04d}.JPG" for i in range(len(exposures))]
+    events.write_text("time,image\n" + "".join(f"{t:.4f},{n}\n" for t, n in zip(exposures, names, strict=True)))
+    photos = tmp_path / "photos"  # image copies are dated by the same clock (they were read as 2080 before)
+    photos.mkdir()
+    for name in names[:5]:
+        Image.new("RGB", (32, 24), (90, 120, 60)).save(photos / name, "JPEG")
+    bag = write_bag(tmp_path / "flight.bag", *csv_to_bag_rows(tmp_path / "imu.csv", tmp_path / "gnss.csv"))
+    out = tmp_path / "out"
+    wrong = RUNNER.invoke(app, ["fuse", "--bag", str(bag), "--config", str(sim60 / "flight.toml"), "-o",
+                                str(out / "traj.csv"), "--export", f"sbet:{out / 'sbet_f.out'}", "--utc-date",
+                                "2024-05-14", "-q"])
+    assert wrong.exit_code == 2 and "start on 2024-05-18" in wrong.output and not out.exists()
+    done = RUNNER.invoke(app, ["process", "--bag", str(bag), "--events", str(events), "--config",
+                               str(sim60 / "flight.toml"), "-o", str(out / "eo.csv"), "--export",
+                               f"sbet:{out / 'sbet_b.out'}", "--images", str(photos), "--export",
+                               f"images:{out / 'tagged'}", "-q"])
+    assert done.exit_code in (0, 4), done.output
+    tags = subprocess.run(["exiftool", "-j", "-n", "-GPSDateTime", *sorted(map(str, (out / "tagged").glob("*.JPG")))],
+                          capture_output=True, text=True, check=True)
+    stamps = [item["GPSDateTime"].rstrip("Z") for item in json.loads(tags.stdout)]
+    posix = [dt.datetime.strptime(s, "%Y:%m:%d %H:%M:%S.%f" if "." in s else "%Y:%m:%d %H:%M:%S")
+             .replace(tzinfo=dt.UTC).timestamp() for s in stamps]
+    np.testing.assert_allclose(posix, exposures[:5], rtol=0, atol=2e-3)
+    raw = np.fromfile(out / "sbet_b.out", dtype=SBET_DTYPE)
+    imu_time = pd.read_csv(sim60 / "imu.csv")["time"].to_numpy()  # UTC seconds of DATE
+    kept = np.isin(np.round(imu_time + SOW_AT_DATE, 4), np.round(raw["time"], 4))
+    assert len(raw) > 1000 and kept.sum() == len(raw)
+    np.testing.assert_allclose(raw["time"], expected_time_of_week(imu_time[kept], DATE), rtol=0, atol=1e-5)

@@ -43,9 +43,10 @@ from .handoffs import (
     check_sbet_request,
     check_time_scale,
     export_images,
-    fuse_day_start,
     fuse_sbet_specs,
-    sbet_day_start,
+    process_sbet_clock,
+    sbet_clock,
+    with_image_checks,
     write_fuse_outputs,
 )
 from .options import (
@@ -97,8 +98,9 @@ app = typer.Typer(
     help="georef: GPS/INS direct georeferencing of aerial imagery. Units: metres, degrees, seconds; "
          "body axes x forward, y right, z down.",
 )
-console = Console(stderr=True, soft_wrap=True)
-out = Console()
+# emoji off: user text (a path, an option such as images:x:...) is printed as it is, never as :x: -> an emoji
+console = Console(stderr=True, soft_wrap=True, emoji=False)
+out = Console(emoji=False)
 
 
 def _version_callback(show: bool) -> None:
@@ -349,11 +351,12 @@ def process(
 
         frames = OutputFrames(cfg.output.crs, cfg.output.height, cfg.output.vertical_crs)
     check_exports(specs, frames)
-    check_image_request(images, image_targets, camera_clock_offset, frames)
+    check_image_request(images, image_targets, camera_clock_offset, frames, cfg.output.image_names)
     sbet_specs = [spec for spec in specs if spec.fmt == "sbet"]
     if specs[0].fmt == "sbet":
         raise typer.BadParameter("an SBET is the trajectory, not the EO table: write it with --export sbet:FILE")
-    check_sbet_request(sbet_specs, utc_date, sbet_rate, dated="log" in source.files)
+    # an autopilot log dates itself; a bag or imu.csv may (Unix stamps, a .pos): checked once read
+    check_sbet_request(sbet_specs, utc_date, sbet_rate, dated=bool({"log", "bag", "imu"} & source.files.keys()))
     if cfg.output.image_names:
         ImageNames.parse(cfg.output.image_names)
     progress, step = _stage_progress(quiet, total=5 if report is not None else 4)
@@ -367,7 +370,7 @@ def process(
     with progress if progress is not None else contextlib.nullcontext():
         result = source.run(cfg, step, given)
         sbet_exports: list[Any] = []
-        sbet_day = sbet_day_start(result, utc_date) if sbet_specs else 0.0
+        sbet_day = process_sbet_clock(result, utc_date, source.files, plain(time_scale)) if sbet_specs else None
 
         def write(spec: Any) -> None:
             if spec.fmt == "sbet":
@@ -384,9 +387,9 @@ def process(
             for spec in specs:
                 if not is_stdout(spec.path):
                     write(spec)
-            image_exports = [export_images(result, images, target, camera_clock_offset, utc_date)
-                             for target in image_targets]
-            verdict = assess_result(result)
+            image_exports = [export_images(result, images, target, camera_clock_offset, utc_date, source.files,
+                                           plain(time_scale)) for target in image_targets]
+            verdict = with_image_checks(assess_result(result), image_exports)
             if report is not None:
                 import shlex
 
@@ -409,6 +412,9 @@ def process(
         outputs += [{"what": "export", "format": "smrmsg", "path": str(done.smrmsg_path)} for done in sbet_exports]
         outputs += [{"what": "export", "format": "images", "path": str(done.target_dir)} for done in image_exports]
         summary = result.summary()
+        from georef.io.pos_time_scale import time_scale_summaries
+
+        summary["time_scale"] = time_scale_summaries(result.notices)  # the .pos files' scale, [] for none
         if image_exports:
             summary["images"] = [done.to_dict() for done in image_exports]
         if sbet_exports:
@@ -422,7 +428,8 @@ def process(
         for spec in specs[1:]:
             messages.print(f"also wrote {escape(spec.fmt)} -> {escape(str(spec.path))}", highlight=False)
         for done in sbet_exports:
-            messages.print(f"also wrote smrmsg -> {escape(str(done.smrmsg_path))}", highlight=False)
+            messages.print(f"also wrote smrmsg -> {escape(str(done.smrmsg_path))}; SBET times: GPS week "
+                           f"{done.records.gps_week}, from {escape(done.records.time_basis)}", highlight=False)
             for note in done.notes:
                 console.print(f"[yellow]warning:[/] {escape(note)}", highlight=False)
         for done in image_exports:
@@ -547,6 +554,16 @@ def _graph_rows(s: dict[str, Any]) -> list[tuple[str, str]]:
     return rows
 
 
+def _clock_name(kind: str, first_s: float) -> str:
+    """What a run's times count: POS.txt and autopilot logs UTC seconds of the day; a bag's or imu.csv's stamps
+    from 1e9 s on Unix seconds (georef.io.sbet.UNIX_FROM_S); other imu.csv times the IMU's own clock."""
+    if first_s >= 1e9:
+        return "Unix time (UTC)"
+    if kind.startswith(("imu.csv", "ROS")):
+        return "on the IMU's clock"
+    return "UTC of day"
+
+
 def _print_summary(result: Any, output: Path, verbose: bool, to: Console) -> None:
     s = result.summary()
     from rich.table import Table
@@ -564,7 +581,7 @@ def _print_summary(result: Any, output: Path, verbose: bool, to: Console) -> Non
     if s["frames_after_last_fix"] or s["frames_before_first_fix"]:
         table.add_row("beyond the GNSS fixes", f"{s['frames_before_first_fix']} frames before the first fix, "
                       f"{s['frames_after_last_fix']} after the last (inertial only)")
-    table.add_row("time span", f"{t0:.2f} - {t1:.2f} s UTC of day ({t1 - t0:.1f} s), "
+    table.add_row("time span", f"{t0:.2f} - {t1:.2f} s {_clock_name(result.log.kind, t0)} ({t1 - t0:.1f} s), "
                   f"{s['imu_rows']} IMU rows at {s['imu_rate_hz']:.1f} Hz")
     gaps = s["gnss_gaps"]
     table.add_row("GNSS epochs", f"{s['gnss_epochs']} ({s['gnss_used']} used, "
@@ -582,6 +599,10 @@ def _print_summary(result: Any, output: Path, verbose: bool, to: Console) -> Non
     for what, text in _filter_rows(s):
         table.add_row(what, text)
     table.add_row("time quirks repaired", str(s["time_quirks_repaired"]))
+    from georef.io.pos_time_scale import time_scale_lines
+
+    for line in time_scale_lines(result.notices):  # a .pos's scale, GPST vs UTC: never only a notice cut off
+        table.add_row("time scale", escape(line))
     if s.get("output_crs") or s.get("output_heights") != "WGS 84 ellipsoidal":
         table.add_row("coordinates", escape(f"{s.get('output_crs') or 'WGS 84'}, heights {s['output_heights']}"))
         for used in s.get("proj_transformations", []):
@@ -850,8 +871,8 @@ def fuse(
     magnetic_declination: MagneticDeclination = None,
     export: Annotated[list[str] | None, typer.Option(
         "--export", help="Also write sbet:FILE, the trajectory as an Applanix SBET with its smrmsg_<name>.out "
-                         "(docs/sbet.md); imu.csv and .pos times need --utc-date, a bag's stamps are Unix seconds "
-                         "(UTC).")] = None,
+                         "(docs/sbet.md). The date: a .pos's, or Unix stamps' (a bag's), else imu.csv's times are "
+                         "UTC seconds of --utc-date.")] = None,
     sbet_rate: SbetRate = None,
     utc_date: UtcDate = None,
     quiet: Quiet = False,
@@ -875,7 +896,7 @@ def fuse(
     method = plain(method)
     _one_stdout(**{"-o": output, "--summary-json": summary_json})
     sbet_specs = fuse_sbet_specs(export, output)
-    check_sbet_request(sbet_specs, utc_date, sbet_rate, dated=bag is not None)
+    check_sbet_request(sbet_specs, utc_date, sbet_rate, dated=True)  # checked once the IMU is read
     cfg = load_configs(config)
     cfg = _with_options(
         cfg, lever_arm_gnss=("--gnss-lever-arm", _triple(gnss_lever_arm, "--gnss-lever-arm", "metres")),
@@ -900,6 +921,9 @@ def fuse(
             fixes = read_gnss_on_imu_scale(gnss, time_s, time_scale, imu.name)
             from_pos = is_solution_file(gnss)
             kind, files = ("imu.csv + RTKLIB .pos" if from_pos else "imu.csv + gnss.csv"), {"imu": imu, "gnss": gnss}
+        # the SBET's time scale and date, before the fusion's minutes: refused here, nothing written
+        sbet_time = sbet_clock(time_s, utc_date, {"--gnss": gnss}, time_scale, bag=bag is not None,
+                               imu_label="the bag's IMU" if bag is not None else imu.name) if sbet_specs else None
         step(f"fusing ({method})")
         inputs = InsInputs(time=time_s, gyro=gyro, accel=accel, gnss=fixes, source=str(bag or imu), mag=mag,
                            autopilot_yaw=autopilot_yaw)
@@ -910,16 +934,18 @@ def fuse(
         else:
             nav = solve_ins(inputs, InsSettings.of(cfg), smooth=method == "rts")
         step("writing trajectory")
-        sbet_exports = write_fuse_outputs(nav, gyro, accel, output, sbet_specs, sbet_rate,
-                                           fuse_day_start(utc_date, bag is not None, time_s) if sbet_specs else 0.0)
+        sbet_exports = write_fuse_outputs(nav, gyro, accel, output, sbet_specs, sbet_rate, sbet_time)
     verdict = assess(nav, cfg=cfg, kind=kind)
     code = 0 if verdict.passed else EXIT_QC_FAILED
     used = int((nav.gnss.status >= 1).sum())
     rejected = nav.gnss.rejected_lines
     figures = solution_figures(nav, cfg.gnss, fixes.sigma_neu)
+    from georef.io.pos_time_scale import time_scale_lines, time_scale_summaries
+
     if summary_json is not None:
         summary = {"method": method, "trajectory_rows": int(nav.valid.sum()), "gnss_fixes": len(fixes),
-                   "gnss_used": used, "gnss_rejected_lines": rejected, **figures}
+                   "gnss_used": used, "gnss_rejected_lines": rejected, **figures,
+                   "time_scale": time_scale_summaries(fixes.notices)}
         outputs = [{"what": "trajectory", "format": "csv", "path": str(output)}]
         for done in sbet_exports:
             outputs += [{"what": "export", "format": "sbet", "path": str(done.sbet_path)},
@@ -933,18 +959,23 @@ def fuse(
         named = f" (lines {', '.join(map(str, rejected[:10]))})" if rejected else ""
         to.print(f"{int(nav.valid.sum())} trajectory rows -> {_target(output)}; GNSS {len(fixes)} fixes, "
                  f"{used} used, {len(rejected)} rejected{named}", highlight=False, soft_wrap=True)
+        for line in time_scale_lines(fixes.notices):  # which scale the .pos was put on: GPST and UTC are 18 s apart
+            to.print(f"time scale: {escape(line)}", highlight=False, soft_wrap=True)
         for what, text in _filter_rows(figures):
             to.print(f"{what}: {text}", highlight=False, soft_wrap=True)
         for done in sbet_exports:
-            to.print(f"also wrote sbet -> {escape(str(done.sbet_path))}, smrmsg -> {escape(str(done.smrmsg_path))}",
+            to.print(f"also wrote sbet -> {escape(str(done.sbet_path))}, smrmsg -> {escape(str(done.smrmsg_path))}; "
+                     f"SBET times: GPS week {done.records.gps_week}, from {escape(done.records.time_basis)}",
                      highlight=False, soft_wrap=True)
             for note in done.notes:
                 to.print(f"[yellow]warning:[/] {escape(note)}", highlight=False, soft_wrap=True)
         if bag is not None:  # what the bag reader converted or skipped: never silent
             for notice in read.all_notices:
                 to.print(f"[yellow]notice:[/] {escape(str(notice))}", highlight=False, soft_wrap=True)
-        elif from_pos:  # what the .pos reader converted, floored or dropped, and the time scale it chose
-            for notice in fixes.notices:
+        elif from_pos:  # what the .pos reader converted, floored or dropped (the time scale is printed above)
+            from georef.io.pos_time_scale import TimeScaleNotice
+
+            for notice in (n for n in fixes.notices if not isinstance(n, TimeScaleNotice)):
                 to.print(f"[yellow]notice:[/] {escape(str(notice))}", highlight=False, soft_wrap=True)
     _print_verdict(verdict, quiet)
     if code:
@@ -1232,13 +1263,14 @@ def calibrate_boresight(
                  ellipsoidal, process_summary)
     code = EXIT_QC_FAILED if result.weak else 0
     if summary_json is not None:
-        write_json(summary_json, {"command": "calibrate-boresight", "exit_code": code, "georef_version":
-                                  georef_version(), "inputs": {"eo": str(eo), "adjusted": str(adjusted),
-                                                               "config": [str(p) for p in config or []], "crs": crs,
-                                                               "process_summary": None if process_summary is None
-                                                               else str(process_summary)},
-                                  "figures": result.summary(),
-                                  "outputs": [{"what": "calibration config", "format": "toml", "path": str(output)}]})
+        from .summary import SCHEMA_VERSION
+
+        inputs = {"eo": str(eo), "adjusted": str(adjusted), "config": [str(p) for p in config or []], "crs": crs,
+                  "process_summary": None if process_summary is None else str(process_summary)}
+        write_json(summary_json, {"schema": SCHEMA_VERSION, "georef_version": georef_version(),
+                                  "command": "calibrate-boresight", "exit_code": code, "inputs": inputs,
+                                  "outputs": [{"what": "calibration config", "format": "toml", "path": str(output)}],
+                                  "figures": result.summary()})
     if not quiet:
         print_result(result, output, _messages(summary_json), console)
     elif result.weak:
@@ -1252,7 +1284,8 @@ def calibrate_boresight(
 @_user_errors
 def info(
     pos: Annotated[Path, typer.Argument(help="The log: an autopilot log (ArduPilot .bin/.log, PX4 .ulg, gzip too), "
-                                             "a POS unit's POS.txt, or a ROS bag (.bag, a ROS 2 bag's folder).")],
+                                             "a POS unit's POS.txt, a ROS bag (.bag, a ROS 2 bag's folder) or an "
+                                             "RTKLIB/Emlid .pos solution (gzip too).")],
     config: ConfigFile = None,
     gnss_rate: Annotated[float | None, typer.Option(help="GNSS fix rate in Hz, if known (default: the config's, "
                                                          "else 1).")] = None,
@@ -1260,7 +1293,8 @@ def info(
 ) -> None:
     """Describe a log: for an autopilot log its vehicle, span, IMU streams, GNSS fixes and accuracy, clock, camera
     events and lever-arm parameters; for POS.txt its format, span, rates, GNSS epochs and gaps, quirks repaired,
-    columns found."""
+    columns found; for an RTKLIB/Emlid .pos its layout, time system (GPST: the leap seconds), span, epochs, gaps
+    and solution qualities."""
     from georef.io.logs import read_flight_log, sniff
     from georef.io.pos import read_pos
     from georef.io.rosbag import describe_bag, is_bag
@@ -1268,6 +1302,12 @@ def info(
     if is_bag(pos):  # a ROS bag: its topics, and which ones --bag reads
         _print_rows(str(pos), describe_bag(pos))
         return
+    from georef.io.rtklib import check_not_headerless, describe_pos, is_rtklib_pos
+
+    if is_rtklib_pos(pos):  # an RTKLIB/Emlid .pos (gzip too): its time system, span, qualities
+        _print_rows(str(pos), describe_pos(pos))
+        return
+    check_not_headerless(pos)
     if sniff(pos) is not None:
         from georef.io.logs.flightlog import describe
 

@@ -140,9 +140,11 @@ SbetRate = Annotated[float | None, typer.Option(
     "--sbet-rate", help="Record rate of --export sbet:FILE in Hz (the first IMU row of every 1/rate s of GPS time; "
                         "at most the IMU's rate). Default: every IMU row with a solution.")]
 UtcDate = Annotated[str | None, typer.Option(
-    "--utc-date", help="UTC date YYYY-MM-DD of the log's time of day (POS.txt, imu.csv and events.csv carry none; "
-                       "an autopilot log's own is used): --export sbet needs it for GPS seconds of the week; "
-                       "image copies take it for their GPS date stamp.")]
+    "--utc-date", help="UTC date YYYY-MM-DD from whose 00:00 the times count, in seconds (POS.txt, imu.csv and "
+                       "events.csv carry none): --export sbet needs it for GPS seconds of the week; image copies "
+                       "take it for their GPS date stamp. Not needed where the inputs date themselves (an "
+                       "autopilot log, an RTKLIB/Emlid .pos, Unix time stamps such as a bag's); given there, it "
+                       "must agree.")]
 BagFile = Annotated[Path | None, typer.Option(
     "--bag", help="A ROS 1 .bag file or a ROS 2 bag's folder (metadata.yaml with .db3 or .mcap): its sensor_msgs/Imu "
                   "[rad/s, m/s^2, REP 103 forward-left-up] and sensor_msgs/NavSatFix [deg, m above the WGS 84 "

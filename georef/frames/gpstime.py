@@ -135,3 +135,37 @@ def solution_times(utc: np.ndarray, scale: str = "utc-day", reference_utc: float
     gps = utc_to_gps_seconds(utc)
     week = np.floor(float(utc_to_gps_seconds(reference)) / SECONDS_PER_WEEK)
     return gps - week * SECONDS_PER_WEEK
+
+
+def scale_to_gps_week(times: np.ndarray, scale: str, day_start_posix: float = 0.0,
+                      gps_week: int | None = None) -> tuple[int, np.ndarray]:
+    """GPS week and seconds of that week [s] of times [s] on a scale of :data:`TIME_SCALES`: ``utc-day`` UTC
+    seconds from the UTC midnight ``day_start_posix`` [POSIX s], ``utc-posix`` Unix seconds (UTC), ``gps-week``
+    GPS seconds from the start of GPS week ``gps_week`` (no leap seconds: only the week is carried).
+
+    As :func:`utc_of_day_to_gps_week`: the week is that of the first time and later times count on past
+    604800 s. Unix times are split at the first time's UTC midnight so that the seconds of day keep their
+    resolution."""
+    t = np.asarray(times, dtype=float)
+    if scale == "utc-day":
+        return utc_of_day_to_gps_week(day_start_posix, t)
+    if scale == "utc-posix":
+        midnight = utc_day_start(float(t[0]))
+        return utc_of_day_to_gps_week(midnight, t - midnight)
+    if scale != "gps-week" or gps_week is None:
+        raise ValueError(f"time scale must be one of {', '.join(TIME_SCALES)} (gps-week with its week), got {scale!r}")
+    carried = int(np.floor(float(t[0]) / SECONDS_PER_WEEK))  # a first time past the week's end: the next week's
+    return gps_week + carried, t - carried * SECONDS_PER_WEEK
+
+
+def scale_to_utc(times: np.ndarray, scale: str, day_start_posix: float = 0.0,
+                 gps_week: int | None = None) -> np.ndarray:
+    """UTC [POSIX s] of times [s] on a scale of :data:`TIME_SCALES` (the arguments of :func:`scale_to_gps_week`)."""
+    t = np.asarray(times, dtype=float)
+    if scale == "utc-day":
+        return day_start_posix + t
+    if scale == "utc-posix":
+        return t.copy()
+    if scale != "gps-week" or gps_week is None:
+        raise ValueError(f"time scale must be one of {', '.join(TIME_SCALES)} (gps-week with its week), got {scale!r}")
+    return gps_week_to_utc(np.full(t.shape, gps_week), t)

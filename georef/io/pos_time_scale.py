@@ -27,13 +27,22 @@ import numpy as np
 from georef.frames.gpstime import (
     SECONDS_PER_DAY,
     SECONDS_PER_WEEK,
+    gps_minus_utc,
     gps_week_of,
     solution_times,
     utc_day_start,
     utc_to_gps_seconds,
 )
 from georef.io.errors import InputError, InputNotice
-from georef.io.rtklib import is_rtklib_pos, read_pos_solution, read_rtklib_events, read_rtklib_gnss
+from georef.io.rtklib import (
+    PosSolution,
+    check_events_file,
+    check_not_headerless,
+    is_rtklib_pos,
+    read_pos_solution,
+    read_rtklib_events,
+    read_rtklib_gnss,
+)
 
 if TYPE_CHECKING:
     from georef.align import GnssEpochs
@@ -50,6 +59,57 @@ CHOICES = (AUTO, *SCALES)
 #: start one such period before or after the IMU's (a flight across 00:00 UTC, or the Saturday/Sunday midnight of
 #: GPS time, whose first GNSS time lies on the other side of it than the IMU's first row)
 _PERIOD = {"utc-day": SECONDS_PER_DAY, "gps-week": SECONDS_PER_WEEK, "unix": None}
+
+
+@dataclass
+class TimeScaleNotice(InputNotice):
+    """The notice saying which scale a solution file's times were put on, with the choice as data for the run's
+    summary (:func:`time_scale_summaries`): ``what`` (GNSS fixes, camera events), ``scale`` (a key of
+    :data:`SCALES`), ``counted_from`` (the day or GPS week in words), ``time_system`` (the file's: GPST, UTC,
+    JST), ``gps_minus_utc_s`` (the leap seconds at the file's first time), ``requested`` (``--time-scale``)."""
+
+    what: str = ""
+    scale: str = ""
+    counted_from: str = ""
+    time_system: str = ""
+    gps_minus_utc_s: int = 0
+    requested: str = AUTO
+
+    def to_dict(self) -> dict[str, object]:
+        return {"file": str(self.path), "what": self.what, "scale": self.scale, "counted_from": self.counted_from,
+                "time_system": self.time_system, "gps_minus_utc_s": self.gps_minus_utc_s,
+                "requested": self.requested}
+
+
+def time_scale_summaries(notices: list[InputNotice]) -> list[dict[str, object]]:
+    """The time-scale choices among ``notices`` (:class:`TimeScaleNotice`), as dicts for a run's summary."""
+    return [notice.to_dict() for notice in notices if isinstance(notice, TimeScaleNotice)]
+
+
+def time_scale_lines(notices: list[InputNotice]) -> list[str]:
+    """The time-scale choices among ``notices`` in words, one line each, for a command's normal output."""
+    return [f"{notice.path}: {notice.message}" for notice in notices if isinstance(notice, TimeScaleNotice)]
+
+
+def _leap_text(time_system: str, leap: int) -> str:
+    return {"GPST": f"GPST: UTC = GPST - {leap} s, the leap seconds", "UTC": "UTC",
+            "JST": "JST: UTC = JST - 9 h"}.get(time_system, time_system)
+
+
+def _scale_notice(choice: ScaleChoice, solution: PosSolution, what: str, requested: str, first_utc: float
+                  ) -> TimeScaleNotice:
+    """``choice``'s notice, with the file's time system and leap seconds named (GPST and UTC differ by them: an
+    IMU on the other one puts every fix that many seconds along the track)."""
+    leap = int(gps_minus_utc(utc_to_gps_seconds(np.array([first_utc])))[0])
+    system = solution.header.time_system
+    message = f"{choice.notice.message}; the file's times are {_leap_text(system, leap)}"
+    if choice.scale != "unix":
+        other = "gps-week" if choice.scale == "utc-day" else "utc-day"
+        message += (f" (if the IMU's clock is GPS time rather than UTC or the other way round, every time is {leap} s "
+                    f"off: --time-scale {other})")
+    return TimeScaleNotice(choice.notice.path, choice.notice.lines, system, message, what=what, scale=choice.scale,
+                           counted_from=describe_scale(choice.scale, choice.reference_utc), time_system=system,
+                           gps_minus_utc_s=leap, requested=scale_name(requested))
 
 
 @dataclass(frozen=True)
@@ -179,13 +239,14 @@ def read_gnss_on_imu_scale(path: Path | str, imu_time: np.ndarray, requested: st
     from georef.io.generic import read_gnss_csv
 
     if not is_rtklib_pos(path):
+        check_not_headerless(path)
         return read_gnss_csv(path)
     solution = read_pos_solution(path)
     if not len(solution):  # only time marks: read_rtklib_gnss says it is an events file
         return read_rtklib_gnss(path, solution=solution)
     choice = choose_time_scale(path, solution.utc, imu_time, requested, imu_label, "GNSS fixes")
     fixes = read_rtklib_gnss(path, choice.reader_scale, reference_utc=choice.reference_utc, solution=solution)
-    fixes.notices.append(choice.notice)
+    fixes.notices.append(_scale_notice(choice, solution, "GNSS fixes", requested, float(solution.utc[0])))
     return fixes
 
 
@@ -197,13 +258,15 @@ def read_events_on_imu_scale(path: Path | str, imu_time: np.ndarray, requested: 
     from georef.io.events import read_events
 
     if not is_rtklib_pos(path):
+        check_not_headerless(path)
         return read_events(path)
     solution = read_pos_solution(path)
+    check_events_file(solution)  # before the scale: a solution's span would only say it overlaps
     marks = np.sort(np.concatenate([solution.utc, solution.invalid_mark_utc]))
     choice = choose_time_scale(path, marks, imu_time, requested, imu_label, "camera events", bag)
     exposures, names = read_rtklib_events(path, choice.reader_scale, reference_utc=choice.reference_utc,
                                           solution=solution)
-    exposures.notices.append(choice.notice)
+    exposures.notices.append(_scale_notice(choice, solution, "camera events", requested, float(marks[0])))
     return exposures, names
 
 

@@ -24,8 +24,10 @@ What the header says, and what georef does with it (``docs/rtklib.md``):
 from __future__ import annotations
 
 import datetime as dt
+import gzip
 import re
 import stat
+import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -110,6 +112,11 @@ _SEPARATORS = (",", ";", "\t", "|")
 _INVALID_MARK = "time mark is not valid"
 #: how much of a file :func:`is_rtklib_pos` looks at [bytes]
 _SNIFF_BYTES = 16384
+#: the first two bytes of a gzip file (RFC 1952)
+_GZIP_MAGIC = b"\x1f\x8b"
+#: a solution line's start: ``yyyy/mm/dd hh:mm:ss`` or GPS week and seconds of week (RTKLIB's two time formats)
+_SOLUTION_LINE = re.compile(r"^\s*(?:\d{4}/\d{1,2}/\d{1,2}\s+\d{1,2}:\d{2}:\d{2}(?:\.\d*)?|\d{3,4}\s+\d+\.\d+)\s+"
+                            r"[-+]?\d")
 
 
 @dataclass
@@ -157,16 +164,27 @@ class PosSolution:
         return len(self.utc)
 
 
+def _read_bytes(path: Path | str, limit: int | None = None) -> bytes:
+    """The file's bytes (the first ``limit`` of them), decompressed when it is gzip (an archived ``.pos.gz``:
+    recognised by gzip's magic bytes, not by the name)."""
+    with open(path, "rb") as handle:
+        magic = handle.read(2)
+        handle.seek(0)
+        if magic != _GZIP_MAGIC:
+            return handle.read() if limit is None else handle.read(limit)
+        with gzip.GzipFile(fileobj=handle) as unzipped:
+            return unzipped.read() if limit is None else unzipped.read(limit)
+
+
 def is_rtklib_pos(path: Path | str) -> bool:
-    """Whether ``path`` is an RTKLIB solution file, by its content: a ``% program :`` line naming RTKLIB (or
-    rnx2rtkp, RTKPOST, Emlid), or a ``%`` column header naming a time system and RTKLIB's position columns. A pipe
-    or a missing file is not looked into (False)."""
+    """Whether ``path`` is an RTKLIB solution file (gzip too), by its content: a ``% program :`` line naming
+    RTKLIB (or rnx2rtkp, RTKPOST, Emlid), or a ``%`` column header naming a time system and RTKLIB's position
+    columns. A pipe or a missing file is not looked into (False)."""
     try:
         if not stat.S_ISREG(Path(path).stat().st_mode):
             return False
-        with open(path, "rb") as handle:
-            head = handle.read(_SNIFF_BYTES).decode("utf-8", errors="replace")
-    except OSError:
+        head = _read_bytes(path, _SNIFF_BYTES).decode("utf-8", errors="replace")
+    except (OSError, EOFError, zlib.error):
         return False
     for raw in head.splitlines():
         text = raw.strip()
@@ -331,10 +349,12 @@ def read_pos_solution(path: Path | str, geoid: str = EGM96_HEIGHT) -> PosSolutio
     """
     path = Path(path)
     try:
-        with open(path, "rb") as handle:
-            raw_lines = handle.read().split(b"\n")
+        raw_lines = _read_bytes(path).split(b"\n")
     except OSError as exc:
         raise InputError(path, None, None, f"cannot read: {exc.strerror or exc}") from None
+    except (EOFError, zlib.error) as exc:
+        raise InputError(path, None, None, f"a damaged gzip file ({exc}): unpack it with gunzip to see what is "
+                         "left, or copy it again") from None
     lines: list[str] = []
     for index, raw in enumerate(raw_lines):
         try:
@@ -594,6 +614,7 @@ def read_rtklib_events(path: Path | str, time_scale: str = "utc-day", reference_
     from georef.io.camera import FEEDBACK_TIME_SIGMA, Exposures
 
     solution = read_pos_solution(path, geoid=geoid) if solution is None else solution
+    check_events_file(solution)
     utc = np.concatenate([solution.utc, solution.invalid_mark_utc])
     line = np.concatenate([solution.line, solution.invalid_mark_line]).astype(np.int64)
     order = np.argsort(line, kind="stable")
@@ -616,3 +637,116 @@ def read_rtklib_events(path: Path | str, time_scale: str = "utc-day", reference_
     exposures = Exposures(path=solution.path, frame=frames, time=times, lines=line, notices=notices,
                           problem=np.array([""] * len(utc)), time_sigma=np.full(len(utc), FEEDBACK_TIME_SIGMA))
     return exposures, None
+
+
+def check_not_headerless(path: Path | str) -> None:
+    """Refuse RTKLIB solution lines without their ``%`` header (written with out-outhead=off, or the header cut
+    off), which would otherwise be read as a csv without its column names: an :class:`InputError` naming the
+    first line. Anything else (a csv, a missing file) is left to its reader."""
+    try:
+        if not stat.S_ISREG(Path(path).stat().st_mode):
+            return
+        head = _read_bytes(path, _SNIFF_BYTES).decode("utf-8", errors="replace")
+    except (OSError, EOFError, zlib.error):
+        return
+    for number, raw in enumerate(head.splitlines(), start=1):
+        if not raw.strip():
+            continue
+        if _SOLUTION_LINE.match(raw) and "," not in raw:
+            raise InputError(path, number, None, "RTKLIB solution lines without RTKLIB's header: the '%' lines "
+                             "that name the time system (GPST, UTC) and the columns are missing, so the times and "
+                             "positions cannot be read safely. Write the solution with its header (RTKLIB option "
+                             "out-outhead=on; Emlid Studio writes it), or copy the header lines back from the same "
+                             "program's output")
+        return
+
+
+#: a solution file given as camera events: most steps between its epochs equal to the median step to this share
+#: of it (a receiver's output rate; a simulated receiver's time tags jitter by a few ms at 5 Hz) ...
+_REGULAR_STEP_TOLERANCE = 0.05
+#: ... in this share of the steps, with at least this many epochs
+_REGULAR_SHARE, _REGULAR_MIN_EPOCHS = 0.9, 20
+
+
+def check_events_file(solution: PosSolution) -> None:
+    """Refuse a position solution given as camera events (``--events rover.pos``): its epochs follow the
+    receiver's output rate (nearly all steps equal), while an Emlid/RTKLIB demo5 event file (named
+    ``*_events.pos``, or holding 'Time mark is not valid' lines) has one line per shutter. An
+    :class:`InputError` (exit 2) says to give it as --gnss."""
+    if len(solution.invalid_mark_line) or solution.path.name.lower().removesuffix(".gz").endswith("_events.pos"):
+        return
+    if len(solution) < _REGULAR_MIN_EPOCHS:
+        return
+    step = np.diff(solution.utc)
+    median = float(np.median(step))
+    regular = float(np.mean(np.abs(step - median) <= _REGULAR_STEP_TOLERANCE * median))
+    if regular < _REGULAR_SHARE:
+        return
+    raise InputError(solution.path, None, None, f"this is a position solution, not camera events: {len(solution)} "
+                     f"epochs, {100 * regular:.0f} % of them {median:g} s apart (the receiver's output rate, not "
+                     "shutter events). Give it as --gnss; the camera events are the *_events.pos that Emlid Studio "
+                     "or RTKLIB demo5 writes from the receiver's event input (or an events.csv). An event file "
+                     "renamed: name it *_events.pos")
+
+
+def describe_pos(path: Path | str) -> list[tuple[str, str]]:
+    """``georef info`` of an RTKLIB/Emlid .pos: (what, value) rows: program, layout, time system, epochs, span
+    (UTC and, for GPST, GPS time), output interval, solution qualities, median sigmas, camera time marks."""
+    solution = read_pos_solution(path)
+    header = solution.header
+    rows = [("format", f"RTKLIB solution (.pos), {header.program or 'program not named'}"),
+            ("layout", f"{header.layout}, heights {header.height}"
+             + (f", base {np.degrees(header.base[0]):.8f}, {np.degrees(header.base[1]):.8f}, "
+                f"{header.base[2]:.3f} m" if header.base is not None else "")),
+            ("time system", _time_system_text(solution))]
+    marks = len(solution.invalid_mark_line)
+    if not len(solution):
+        first, last = float(solution.invalid_mark_utc[0]), float(solution.invalid_mark_utc[-1])
+        rows += [("epochs", f"none with a solution; {marks} camera time mark(s) without one: an events file"),
+                 ("time span", _utc_span(first, last))]
+        return rows
+    first, last = float(solution.utc[0]), float(solution.utc[-1])
+    step = np.diff(solution.utc)
+    events = bool(marks) or solution.path.name.lower().removesuffix(".gz").endswith("_events.pos")
+    if events:  # one line per shutter: no output rate, no gaps
+        rows += [("camera events", f"{len(solution) + marks} ({marks} without a solution): an events file, for "
+                  "--events"), ("time span", _utc_span(min(first, *solution.invalid_mark_utc),
+                                                       max(last, *solution.invalid_mark_utc)))]
+        step = np.empty(0)
+    else:
+        rate = f", every {float(np.median(step)):g} s" if len(step) else ""
+        rows += [("epochs", f"{len(solution)}{rate}: a position solution, for --gnss"),
+                 ("time span", _utc_span(first, last))]
+    if header.time_system == "GPST":
+        gps = utc_to_gps_seconds(np.array([first, last]))
+        week = int(np.floor(gps[0] / SECONDS_PER_WEEK))
+        rows.append(("GPS time", f"week {week}, {gps[0] - week * SECONDS_PER_WEEK:.3f} - "
+                     f"{gps[1] - week * SECONDS_PER_WEEK:.3f} s of the week"))
+    gaps = np.flatnonzero(step > 1.5 * float(np.median(step))) if len(step) else np.empty(0, int)
+    if len(gaps):
+        rows.append(("gaps", f"{len(gaps)}, longest {float(step.max()):.1f} s (after line "
+                     f"{int(solution.line[int(np.argmax(step))])})"))
+    counts = ", ".join(f"{int((solution.quality == q).sum())} {name} (Q={q})" for q, name in QUALITY_NAMES.items()
+                       if (solution.quality == q).any())
+    rows.append(("solution quality", counts))
+    sigma = np.sqrt(np.diagonal(solution.cov_ned, axis1=-2, axis2=-1))
+    rows.append(("median sigma (file)", f"north {np.median(sigma[:, 0]):.3f}, east {np.median(sigma[:, 1]):.3f}, "
+                 f"up {np.median(sigma[:, 2]):.3f} m (before georef's floors per Q)"))
+    rows += [("notice", str(notice)) for notice in solution.notices]
+    return rows
+
+
+def _time_system_text(solution: PosSolution) -> str:
+    system = solution.header.time_system
+    if system == "GPST":
+        first = float(solution.utc[0]) if len(solution) else float(solution.invalid_mark_utc[0])
+        leap = int(gps_minus_utc(utc_to_gps_seconds(np.array([first])))[0])
+        return f"GPST (GPS time): UTC = GPST - {leap} s (leap seconds)"
+    return {"UTC": "UTC", "JST": "JST: UTC = JST - 9 h"}[system]
+
+
+def _utc_span(first: float, last: float) -> str:
+    def text(posix: float) -> str:
+        return dt.datetime.fromtimestamp(posix, tz=dt.UTC).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3]
+
+    return f"{text(first)} - {text(last)} UTC ({last - first:.1f} s)"

@@ -26,12 +26,23 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from georef.frames import euler_to_dcm
-from georef.frames.gpstime import leap_seconds_note, utc_of_day_to_gps_week
+from georef.frames.gpstime import (
+    GPS_EPOCH,
+    SECONDS_PER_DAY,
+    gps_week_of,
+    leap_seconds_note,
+    scale_to_gps_week,
+    scale_to_utc,
+    utc_date,
+    utc_day_start,
+    utc_to_gps_seconds,
+)
 from georef.frames.wander import ARCMIN_PER_RAD, body_acceleration, ned_to_wander, platform_heading
 from georef.io.atomic import atomic_group, atomic_write
 
 if TYPE_CHECKING:
     from georef.fusion.solution import NavSolution
+    from georef.io.pos_time_scale import ScaleChoice
 
 #: the SBET record's fields, in file order (PDAL io/SbetCommon.hpp ``fileDimensions``, commit ccf0ab70)
 SBET_FIELDS = ("gps_time", "latitude", "longitude", "height", "x_velocity", "y_velocity", "z_velocity", "roll",
@@ -46,6 +57,49 @@ RECORD_TYPE = "<f8"
 
 class SbetExportError(ValueError):
     """An SBET that cannot be written from this run (no date for the time of day, no raw IMU, no solution)."""
+
+
+#: times from this on [s] are Unix seconds (2001-09-09 and later): no count of a day's or a week's seconds gets
+#: there, and a clock since power-on or a simulated clock rarely does
+UNIX_FROM_S = 1e9
+#: UTC seconds of a day reach at most this [s]: a flight that crosses midnight goes on past 86400 s, and none
+#: lasts another day
+MAX_SECONDS_OF_DAY = 2 * SECONDS_PER_DAY
+
+
+@dataclass(frozen=True)
+class RunClock:
+    """What a run's times [s] are, so that they become GPS seconds of the week: ``scale`` one of
+    :data:`georef.frames.gpstime.TIME_SCALES` (``utc-day``: UTC seconds from the midnight ``day_start_posix``
+    [POSIX s]; ``utc-posix``: Unix seconds; ``gps-week``: GPS seconds from the start of week ``gps_week``), and
+    ``source``, where the date came from (for messages and the summary)."""
+
+    scale: str
+    day_start_posix: float = 0.0
+    gps_week: int | None = None
+    source: str = ""
+
+    def gps_week_times(self, times: np.ndarray) -> tuple[int, np.ndarray]:
+        """GPS week of the first time, and GPS seconds of that week [s] (on past 604800 s)."""
+        return scale_to_gps_week(times, self.scale, self.day_start_posix, self.gps_week)
+
+    def utc(self, times: np.ndarray | float) -> np.ndarray:
+        """UTC [POSIX s] of ``times``."""
+        return scale_to_utc(np.atleast_1d(np.asarray(times, dtype=float)), self.scale, self.day_start_posix,
+                            self.gps_week)
+
+    def describe(self) -> str:
+        """The scale in words (``UTC seconds of 2025-06-14``)."""
+        if self.scale == "utc-day":
+            return f"UTC seconds of {utc_date(self.day_start_posix).isoformat()}"
+        if self.scale == "gps-week":
+            return f"GPS seconds of week {self.gps_week}"
+        return "Unix seconds (UTC)"
+
+
+def _as_clock(clock: RunClock | float) -> RunClock:
+    """A bare number is the POSIX second of the UTC midnight the times count from (``utc-day``)."""
+    return clock if isinstance(clock, RunClock) else RunClock("utc-day", float(clock))
 
 
 @dataclass
@@ -68,6 +122,8 @@ class SbetRecords:
     gps_week: int
     left_out: int
     notes: list[str] = field(default_factory=list)
+    #: what the run's times were and where their date came from, in words
+    time_basis: str = ""
 
 
 @dataclass
@@ -87,6 +143,7 @@ class SbetExport:
         sbet = self.records.sbet
         return {"sbet_path": str(self.sbet_path), "smrmsg_path": str(self.smrmsg_path), "sbet_records": len(sbet),
                 "sbet_gps_week": self.records.gps_week, "sbet_rows_left_out": self.records.left_out,
+                "sbet_time_basis": self.records.time_basis,
                 "sbet_first_time_of_week_s": float(sbet[0, 0]) if len(sbet) else None,
                 "sbet_last_time_of_week_s": float(sbet[-1, 0]) if len(sbet) else None}
 
@@ -116,23 +173,24 @@ def _rows_at_rate(gps_time: np.ndarray, rate_hz: float | None, imu_rate_hz: floa
     return np.flatnonzero(np.r_[True, np.diff(tick) > 0])
 
 
-def sbet_records(nav: NavSolution, imu: ImuRows, day_start_posix: float, rate_hz: float | None = None
+def sbet_records(nav: NavSolution, imu: ImuRows, clock: RunClock | float, rate_hz: float | None = None
                  ) -> SbetRecords:
     """The SBET and smrmsg records of ``nav`` (at every IMU row with a solution, or at ``rate_hz`` [Hz]).
 
-    ``nav.time`` is UTC seconds of the day that starts at ``day_start_posix`` [POSIX s, UTC midnight] (georef's
-    time scale, continuous across midnight); it becomes GPS time with the leap seconds of
+    ``nav.time`` is on ``clock``'s scale (:func:`run_clock`; a number: UTC seconds of the day that starts at that
+    POSIX second, georef's time scale, continuous across midnight); UTC becomes GPS time with the leap seconds of
     :mod:`georef.frames.gpstime` at each row's UTC date."""
+    clock = _as_clock(clock)
     valid = np.asarray(nav.valid, bool) & np.isfinite(nav.lat) & np.isfinite(nav.yaw)
     notes: list[str] = []
     rows = np.flatnonzero(valid)
     left_out = int(len(valid) - len(rows))
     if not len(rows):
         raise SbetExportError("the navigation solution has no valid row: no SBET to write")
-    note = leap_seconds_note(day_start_posix + float(nav.time[rows[-1]]))
+    note = leap_seconds_note(float(clock.utc(float(nav.time[rows[-1]]))[0]))
     if note:
         notes.append(f"SBET times: {note}")
-    week, time_of_week = utc_of_day_to_gps_week(day_start_posix, np.asarray(nav.time, dtype=float)[rows])
+    week, time_of_week = clock.gps_week_times(np.asarray(nav.time, dtype=float)[rows])
     imu_rate = float(1.0 / np.median(np.diff(nav.time))) if len(nav.time) > 1 else float("inf")
     kept = _rows_at_rate(time_of_week, rate_hz, imu_rate)
     rows, time_of_week = rows[kept], time_of_week[kept]
@@ -169,14 +227,16 @@ def sbet_records(nav: NavSolution, imu: ImuRows, day_start_posix: float, rate_hz
         notes.append(f"method {nav.method} estimates no velocity covariance: the smrmsg velocity RMS are NaN")
     att_arcmin = np.asarray(nav.att_sigma, float)[rows] * ARCMIN_PER_RAD
     smrmsg = np.column_stack([time_of_week, pos_sigma, vel_sigma, att_arcmin])
-    return SbetRecords(sbet=sbet, smrmsg=smrmsg, gps_week=week, left_out=left_out, notes=notes)
+    basis = clock.describe() + (f", dated by {clock.source}" if clock.source else "")
+    return SbetRecords(sbet=sbet, smrmsg=smrmsg, gps_week=week, left_out=left_out, notes=notes, time_basis=basis)
 
 
-def write_sbet(nav: NavSolution, imu: ImuRows, path: Path | str, day_start_posix: float,
+def write_sbet(nav: NavSolution, imu: ImuRows, path: Path | str, clock: RunClock | float,
                rate_hz: float | None = None) -> SbetExport:
-    """Write the SBET ``path`` and its smrmsg file (:func:`smrmsg_path_for`) together, all or nothing."""
+    """Write the SBET ``path`` and its smrmsg file (:func:`smrmsg_path_for`) together, all or nothing; ``clock``
+    as :func:`sbet_records` takes it."""
     path = Path(path)
-    records = sbet_records(nav, imu, day_start_posix, rate_hz)
+    records = sbet_records(nav, imu, clock, rate_hz)
     rms_path = smrmsg_path_for(path)
     with atomic_group():
         for target, values in ((path, records.sbet), (rms_path, records.smrmsg)):
@@ -195,24 +255,90 @@ def imu_rows_of_log(log: object) -> ImuRows:
     return ImuRows(gyro=np.radians(log.vector("gyro")), accel=log.vector("acc"))  # type: ignore[attr-defined]
 
 
+def parse_utc_date(date_text: str) -> float:
+    """POSIX seconds of 00:00 UTC of ``--utc-date`` ``YYYY-MM-DD``; a date before the GPS epoch (1980-01-06), which
+    has no GPS week, is refused."""
+    import datetime as dt
+
+    try:
+        day = dt.date.fromisoformat(date_text)
+    except ValueError:
+        raise SbetExportError(f"--utc-date {date_text!r}: write the UTC date as YYYY-MM-DD") from None
+    if day < GPS_EPOCH.date():
+        raise SbetExportError(f"--utc-date {date_text}: before the GPS epoch ({GPS_EPOCH.date().isoformat()}), "
+                              "where GPS time has no week; give the flight's UTC date")
+    return dt.datetime(day.year, day.month, day.day, tzinfo=dt.UTC).timestamp()
+
+
 def day_start_of(date_text: str | None, flight_day_start: float | None) -> float:
     """POSIX seconds of 00:00 UTC of the day georef's times count from: the autopilot log's own, or ``date_text``
     (``YYYY-MM-DD``, the UTC date of a POS.txt's or an imu.csv's time of day). Both given and different: error."""
-    import datetime as dt
-
-    given = None
-    if date_text is not None:
-        try:
-            day = dt.date.fromisoformat(date_text)
-        except ValueError:
-            raise SbetExportError(f"--utc-date {date_text!r}: write the UTC date as YYYY-MM-DD") from None
-        given = dt.datetime(day.year, day.month, day.day, tzinfo=dt.UTC).timestamp()
+    given = None if date_text is None else parse_utc_date(date_text)
     if flight_day_start is not None:
         if given is not None and abs(given - flight_day_start) > 0.5:
-            logged = dt.datetime.fromtimestamp(flight_day_start, tz=dt.UTC).date().isoformat()
+            logged = utc_date(flight_day_start).isoformat()
             raise SbetExportError(f"--utc-date {date_text} disagrees with the log's own date {logged}")
         return float(flight_day_start)
     if given is None:
         raise SbetExportError("an SBET counts GPS seconds of the week, and this log's times are UTC seconds of a day "
                               "it does not name: give --utc-date YYYY-MM-DD")
     return given
+
+
+def run_clock(imu_time: np.ndarray, date_text: str | None, *, log_day_start: float | None = None,
+              solution: ScaleChoice | None = None, solution_name: str = "the .pos", bag: bool = False,
+              imu_label: str = "imu.csv") -> RunClock:
+    """The scale of a run's times ``imu_time`` [s] and their date, for GPS time; ``date_text`` is ``--utc-date``.
+
+    What decides, first that applies: an autopilot log's own date (``log_day_start`` [POSIX s]); the scale an
+    RTKLIB/Emlid solution file ``solution_name`` put the IMU's times on (:mod:`georef.io.pos_time_scale`), whose
+    dates name the day or the GPS week; times from :data:`UNIX_FROM_S` on, Unix seconds (a bag's wall clock, an
+    imu.csv so logged); else UTC seconds of ``--utc-date`` (POS.txt, imu.csv with gnss.csv, a bag's simulated
+    clock), which must then lie within :data:`MAX_SECONDS_OF_DAY`. A ``--utc-date`` the inputs date themselves must
+    agree: on UTC seconds of a day it is that day, on Unix seconds or GPS seconds of a week the UTC date of the
+    first IMU row. Raises :class:`SbetExportError` with what to do."""
+    times = np.asarray(imu_time, dtype=float)
+    first, last = float(times[0]), float(times[-1])
+    if log_day_start is not None:
+        return RunClock("utc-day", day_start_of(date_text, log_day_start), source="the log's own date")
+    if solution is not None:
+        source = f"the dates of {solution_name}"
+        if solution.reader_scale == "utc-day":
+            day = utc_day_start(solution.reference_utc)
+            if date_text is not None and abs(parse_utc_date(date_text) - day) > 0.5:
+                raise SbetExportError(f"--utc-date {date_text} disagrees with {solution_name}: its dates put "
+                                      f"{imu_label}'s times on UTC seconds of {utc_date(day).isoformat()}; leave "
+                                      "--utc-date out (the .pos dates the flight)")
+            return RunClock("utc-day", day, source=source)
+        week = gps_week_of(float(utc_to_gps_seconds(solution.reference_utc)))
+        clock = RunClock(solution.reader_scale, gps_week=week if solution.reader_scale == "gps-week" else None,
+                         source=source)
+        _check_date(clock, date_text, first, f"{imu_label}'s times, put on {clock.describe()} by {solution_name},")
+        return clock
+    if first >= UNIX_FROM_S:
+        clock = RunClock("utc-posix", source=f"{imu_label}'s Unix time stamps")
+        _check_date(clock, date_text, first, f"{imu_label}'s times ({first:.3f} s on) are Unix seconds and")
+        return clock
+    span = f"{imu_label}'s times run {first:.3f} - {last:.3f} s"
+    scales = ("if they are GPS seconds of the week, give the GNSS as the receiver's RTKLIB/Emlid .pos (--gnss), "
+              "whose dates georef takes (docs/sbet.md)" if not bag else
+              "a bag's stamps are Unix seconds when they come from a wall clock")
+    if date_text is None:
+        raise SbetExportError(f"an SBET counts GPS seconds of the week, and {span}, which do not say their date: "
+                              f"give --utc-date YYYY-MM-DD if they are UTC seconds of that day; {scales}")
+    if first < 0.0 or last >= MAX_SECONDS_OF_DAY:
+        raise SbetExportError(f"--utc-date {date_text} takes the times as UTC seconds of that day, and {span}, which "
+                              f"are not (0 - {MAX_SECONDS_OF_DAY:.0f} s): {scales}")
+    return RunClock("utc-day", parse_utc_date(date_text), source=f"--utc-date {date_text}")
+
+
+def _check_date(clock: RunClock, date_text: str | None, first: float, what: str) -> None:
+    """A ``--utc-date`` given with times that carry their date must be the UTC date of the first time."""
+    if date_text is None:
+        return
+    given = parse_utc_date(date_text)
+    start = float(clock.utc(first)[0])
+    if abs(given - utc_day_start(start)) > 0.5:
+        raise SbetExportError(f"--utc-date {date_text} disagrees with the inputs: {what} start on "
+                              f"{utc_date(start).isoformat()} (UTC); leave --utc-date out, the times carry their "
+                              "date")
