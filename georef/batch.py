@@ -45,6 +45,10 @@ SUMMARY_COLUMNS = ["flight", "status", "method", "frames", "frames_flagged", "gn
 USER_ERRORS = (GeorefError, ValueError, KeyError, OSError)
 #: a flight folder's photos, for the ``images`` export (geotagged copies, georef.io.image_export)
 IMAGES_FOLDER = "images"
+#: what a batch user can do when the photos' capture times do not settle their frames
+BATCH_CLOCK_ADVICE = ("Name the photos with image_names in the flight's flight.toml ([output] image_names = "
+                      "\"IMG_{frame:04d}.JPG\", or a CSV of frame,name); batch takes no camera clock offset: for a "
+                      "known offset run georef process on this flight with --camera-clock-offset SECONDS")
 
 
 @dataclass(frozen=True)
@@ -128,21 +132,27 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None,
                 raise InputError(job.flight, None, None, f"--export images: this flight has no photos (a folder "
                                  f"{IMAGES_FOLDER}/ beside its POS.txt, or an images column in the manifest)")
             for target in image_targets:
-                check_image_export(Path(job.images), target, frames)
+                check_image_export(Path(job.images), target, frames, cfg.output.image_names)
         result = process(job.pos, job.camera, cfg, calibration_prior=calibration_prior)
+        image_checks = []
         with atomic_group():
             for spec in specs:
                 write_export(result.columns, spec.path, spec.fmt, frames=result.frames,
                              odm_angles=cfg.output.odm_angles)
             if image_targets:
                 from georef.io.image_export import export_images
+                from georef.io.image_match import ClockMatchError
 
                 flight_day = None if result.flight is None else float(result.flight.day_start_utc)
                 for target in image_targets:
-                    done = export_images(result.columns, Path(job.images), target, frames=result.frames,
-                                         day_start_posix=flight_day,
-                                         date_source=None if flight_day is None else "the log's own date")
+                    try:
+                        done = export_images(result.columns, Path(job.images), target, frames=result.frames,
+                                             day_start_posix=flight_day,
+                                             date_source=None if flight_day is None else "the log's own date")
+                    except ClockMatchError as exc:  # batch has neither option the message names: its own advice
+                        raise ClockMatchError(exc.finding, BATCH_CLOCK_ADVICE) from None
                     log_lines.extend(done.lines())
+                    image_checks.append(done.check())
                     row["outputs"].append({"what": "export", "format": "images", "path": str(target)})
         row["outputs"] += [{"what": "table" if k == 0 else "export", "format": spec.fmt, "path": str(spec.path)}
                            for k, spec in enumerate(specs)]
@@ -161,6 +171,7 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None,
                    message="")
         # the verdict is judged here, on the worker, and travels back as plain text
         verdict = assess_result(result)
+        verdict = type(verdict)((*verdict.checks, *(check for check in image_checks if check is not None)))
         row.update(qc="passed" if verdict.passed else "failed: " + ", ".join(c.name for c in verdict.failures),
                    qc_details=" | ".join(c.line() for c in verdict.checks if c.status != "pass"),
                    checks=verdict.to_dicts(), summary=summary)

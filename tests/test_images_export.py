@@ -13,6 +13,7 @@ import hashlib
 import io
 import json
 import math
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -390,25 +391,31 @@ def test_capture_time_is_ambiguous_on_regular_triggering(flight):
     assert np.array_equal(match.frame_index, rows) and match.fixed
 
 
-def test_capture_time_matching_end_to_end_with_a_time_zone(flight, tmp_path):
-    """Photos named freely, matched by capture time; OffsetTimeOriginal +02:00 makes the camera clock UTC."""
-    result, _ = flight
+def _irregular_photos(result, tmp_path: Path, clock_minus_utc_s: float, zone: str | None = None):
+    """Three lines of the flight's frames (turns left out) as freely named photos in ``tmp_path/src`` whose
+    capture times run ``clock_minus_utc_s`` ahead of UTC; the frames' rows of the EO table (without names)."""
     columns = {k: v for k, v in result.columns.items() if k != "image"}
     rows, times = _irregular(columns, [(10, 22), (40, 47), (80, 95)])
-    table = {k: np.asarray(v)[rows] for k, v in columns.items()}
     src = tmp_path / "src"
     src.mkdir()
     for k, j in enumerate(rows):
-        # the camera shows local time (UTC+2) and knows it; its clock is 1.5 s slow
-        _jpeg(src / f"DSC{k:05d}.JPG", "SONY", DAY + times[j] + 7200.0 - 1.5, zone="+02:00")
+        _jpeg(src / f"DSC{k:05d}.JPG", "SONY", DAY + times[j] + clock_minus_utc_s, zone=zone)
+    return {k: np.asarray(v)[rows] for k, v in columns.items()}, src
+
+
+def test_capture_time_matching_end_to_end_with_a_time_zone(flight, tmp_path):
+    """Photos named freely, matched by capture time; OffsetTimeOriginal +02:00 makes the camera clock UTC."""
+    result, _ = flight
+    # the camera shows local time (UTC+2) and knows it; its clock is 1.5 s slow
+    table, src = _irregular_photos(result, tmp_path, 7200.0 - 1.5, zone="+02:00")
     done = export_images(table, src, tmp_path / "out", frames=result.frames)
     assert done.clock is not None and done.clock.offset_s == pytest.approx(-1.5, abs=0.002)
-    assert done.count(TAGGED) == len(rows)
+    assert done.count(TAGGED) == len(table["frame"])
     tags = _exiftool(sorted((tmp_path / "out").glob("*.JPG")))
-    for k, j in enumerate(rows):
+    for k in range(len(table["frame"])):
         t = tags[f"DSC{k:05d}.JPG"]
-        assert t["GPS:GPSLatitude"] == pytest.approx(columns["lat"][j], abs=1e-9)
-        assert _gps_posix(t) == pytest.approx(DAY + times[j], abs=1e-3)
+        assert t["GPS:GPSLatitude"] == pytest.approx(table["lat"][k], abs=1e-9)
+        assert _gps_posix(t) == pytest.approx(DAY + table["time"][k], abs=1e-3)
     assert "from the photos' capture times" in "\n".join(done.lines())
 
 
@@ -492,3 +499,285 @@ def test_batch_flight_with_its_images_folder(tmp_path):
     for k, name in enumerate(("IMG_0001.JPG", "IMG_0002.JPG")):
         assert tags[name]["GPS:GPSLatitude"] == pytest.approx(float(eo["lat"][k]), abs=1e-8)
     assert "images: 2 of 2 photos" in (out / "with" / "georef.log").read_text()
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The new-user trial's findings (issue 25): a given offset an interval off, exports that copy nothing, a wrong
+# date, batch's advice, image names with an offset.
+# ---------------------------------------------------------------------------------------------------------------
+def _regular_run(columns, first: int, last: int):
+    """Rows first..last-1 of the bundled flight (one straight line, 0.33 s interval) and a table of only them."""
+    times = np.asarray(columns["time"], float)
+    rows = np.arange(first, last)
+    table = np.full(len(times), np.nan)
+    table[rows] = times[rows]
+    return rows, times, table
+
+
+def test_given_offset_an_interval_off_is_refused(flight):
+    """The trial: a photo for every frame, a given offset 0.317 s off (the interval 0.333 s): every photo was tagged
+    with the next frame and only 'one photo not copied' told. Now the neighbouring pairing's extra photo refuses it,
+    either way off; the right offset passes with every photo on its own frame."""
+    _, columns = flight
+    rows, times, table = _regular_run(columns, 100, 160)
+    interval = float(np.median(np.diff(times[rows])))
+    true = 7200.317
+    camera = np.floor((DAY + times[rows] + true) * 1000) / 1000
+    resolution = np.full(len(rows), 1e-3)
+    for given in (true - 0.317, true + 0.333):
+        with pytest.raises(ClockMatchError, match="one trigger interval off") as err:
+            match_capture_times(camera, resolution, table, fixed_offset_s=given)
+        text = str(err.value)
+        assert f"+-{interval / 2:.3f} s" in text and "--image-names" in text
+        assert f"matches {len(rows) - 1} of {len(rows)}" in text and f"matches {len(rows)}" in text
+    match = match_capture_times(camera, resolution, table, fixed_offset_s=true)
+    assert np.array_equal(match.frame_index, rows) and match.alternatives == []
+    # within half an interval of the truth still picks the right frames (no local search: the given value holds)
+    near = match_capture_times(camera, resolution, table, fixed_offset_s=true + 0.04)
+    assert np.array_equal(near.frame_index, rows) and near.offset_s == true + 0.04
+
+
+def test_given_offset_on_a_subset_of_a_regular_run_is_accepted_with_a_warning(flight, tmp_path):
+    """Photos of the middle of a regular run: the pairings one interval either side match as many photos, so the
+    data cannot check the given offset; it is used, and the output says the pairing rests on it."""
+    result, _ = flight
+    columns = {k: v for k, v in result.columns.items() if k != "image"}
+    times = np.asarray(columns["time"], float)
+    src = tmp_path / "src"
+    src.mkdir()
+    rows = np.arange(120, 130)
+    for k, j in enumerate(rows):
+        _jpeg(src / f"DSC{k:05d}.JPG", "SONY", DAY + times[j] + 3.25)
+    done = export_images(columns, src, tmp_path / "out", frames=result.frames, fixed_offset_s=3.25)
+    assert [row.frame for row in done.rows] == [str(columns["frame"][j]) for j in rows]
+    # one and two exposures either way (rows 120..129 have frames on both sides): an interval apart each
+    assert done.clock is not None and [fit.matched for fit in done.clock.alternatives] == [len(rows)] * 4
+    steps = np.diff(times[rows[0] - 2: rows[0] + 3])
+    expected = [-(steps[2] + steps[3]), -steps[2], steps[1], steps[0] + steps[1]]  # anchor row 120's neighbours
+    assert sorted(fit.offset_s - 3.25 for fit in done.clock.alternatives) == pytest.approx(expected, abs=0.002)
+    assert "the pairing rests on the given offset" in "\n".join(done.lines())
+    assert done.to_dict()["camera_clock"]["equal_offsets_s"]
+    assert done.check() is None  # matched by capture time: no images check (that match is refused below half)
+
+
+@pytest.mark.parametrize(("pattern", "message"), [
+    ("IMG_{frame:04d}.jpg", "differ only in case (e.g. IMG_0001.JPG)"),
+    ("DSC_{frame:04d}.JPG", "none of its 2 photos"),
+])
+def test_image_names_that_name_no_photo_fail_before_processing(tmp_path, pattern, message):
+    """The trial: names that match no photo copied nothing and said 'QC passed', exit 0 (with -q: nothing)."""
+    src = tmp_path / "photos"
+    src.mkdir()
+    for name in ("IMG_0001.JPG", "IMG_0002.JPG"):
+        _jpeg(src / name, "SONY")
+    result = CliRunner().invoke(app, ["process", str(DATA / "POS.txt"), str(DATA / "Kamera.txt"), "-q",
+                                      "-o", str(tmp_path / "eo.csv"), "--images", str(src),
+                                      "--export", f"images:{tmp_path / 'out'}", "--image-names", pattern])
+    assert result.exit_code == 2, result.output
+    assert message in result.output.replace("\n", " ")
+    assert not (tmp_path / "eo.csv").exists()
+    from georef.io.image_export import ImageExportError
+
+    with pytest.raises(ImageExportError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        check_image_export(src, tmp_path / "out", None, pattern)  # the check before processing itself
+    check_image_export(src, tmp_path / "out", None, PATTERN)  # the folder's own names pass
+
+
+def test_image_names_that_name_no_photo_of_the_frames_fail(flight, tmp_path):
+    """A pattern the folder's names fit (IMG_*.JPG) but no frame's name is there (five digits): nothing matched is
+    an error, never an empty export that passes."""
+    from georef.io.image_export import ImageExportError
+
+    result, _ = flight
+    columns = dict(result.columns)
+    columns["image"] = np.array([f"IMG_{int(f):05d}.JPG" for f in columns["frame"]], dtype=object)
+    src = tmp_path / "src"
+    src.mkdir()
+    for name in ("IMG_0001.JPG", "IMG_0002.JPG"):
+        _jpeg(src / name, "SONY")
+    check_image_export(src, tmp_path / "out", result.frames, "IMG_{frame:05d}.JPG")  # the shapes fit
+    with pytest.raises(ImageExportError, match="none of its 2 photos") as err:
+        export_images(columns, src, tmp_path / "out", frames=result.frames)
+    assert "IMG_00001.JPG" in str(err.value)
+    assert not (tmp_path / "out").exists()
+
+
+def test_partly_named_folders_warn_and_mostly_unnamed_ones_fail(flight, exported, tmp_path):
+    """Some photos without a named frame (or named photos missing): a QC warning; fewer than half the folder's
+    photos with a frame: a QC failure (exit 4), with advice about --image-names."""
+    check = exported["done"].check()
+    assert check is not None and check.status == "warn"
+    assert "6 of 7 photos" in check.message and "IMG_9999.JPG" in check.message
+    result, _ = flight
+    src = tmp_path / "src"
+    src.mkdir()
+    for name in ("IMG_0001.JPG", "IMG_0002.JPG", "DSC_0003.JPG", "DSC_0004.JPG", "DSC_0005.JPG"):
+        _jpeg(src / name, "SONY")
+    done = export_images(result.columns, src, tmp_path / "out", frames=result.frames)
+    check = done.check()
+    assert check is not None and check.status == "fail" and "2 of 5 photos" in check.message
+    assert "--image-names" in check.message
+    from georef_cli.handoffs import with_image_checks
+
+    from georef.qc import Verdict
+
+    assert not with_image_checks(Verdict(()), [done]).passed
+
+
+def test_a_date_that_puts_the_camera_beyond_any_time_zone_is_refused(flight, tmp_path):
+    """The trial: --utc-date a day late gave an offset of -22 h, accepted, and a wrong GPSDateStamp."""
+    from georef.io.image_export import ImageExportError
+
+    result, _ = flight
+    columns = result.columns
+    src = tmp_path / "src"
+    src.mkdir()
+    for j in (0, 1, 2, 3):
+        _jpeg(src / str(columns["image"][j]), "SONY", DAY + columns["time"][j] + 7200.317)  # UTC+2, no zone
+    with pytest.raises(ImageExportError, match="beyond any time zone") as err:
+        export_images(columns, src, tmp_path / "out", frames=result.frames, day_start_posix=DAY + 86400.0,
+                      date_source="--utc-date 2025-06-15")
+    assert "2025-06-14" in str(err.value) and "--utc-date 2025-06-15" in str(err.value)
+    assert "-79199.68" in str(err.value)
+    done = export_images(columns, src, tmp_path / "out", frames=result.frames, day_start_posix=DAY,
+                         date_source="--utc-date 2025-06-14")
+    assert done.clock is not None and done.clock.offset_s == pytest.approx(7200.317, abs=0.002)
+    # a camera on UTC+14 (Kiribati) on the right date is not refused
+    src14 = tmp_path / "src14"
+    src14.mkdir()
+    for j in (0, 1, 2, 3):
+        _jpeg(src14 / str(columns["image"][j]), "SONY", DAY + columns["time"][j] + 14 * 3600.0)
+    done = export_images(columns, src14, tmp_path / "out14", frames=result.frames, day_start_posix=DAY,
+                         date_source="--utc-date 2025-06-14")
+    assert done.clock is not None and done.clock.offset_s == pytest.approx(14 * 3600.0, abs=0.002)
+
+
+def test_a_given_offset_that_puts_the_photos_on_another_day_is_refused(flight, tmp_path):
+    from georef.io.image_export import ImageExportError
+
+    result, _ = flight
+    table, src = _irregular_photos(result, tmp_path, 7200.0)
+    with pytest.raises(ImageExportError, match="exposed on 2025-06-14 UTC, and --utc-date 2025-06-15 says"):
+        export_images(table, src, tmp_path / "out", frames=result.frames, fixed_offset_s=7200.0,
+                      day_start_posix=DAY + 86400.0, date_source="--utc-date 2025-06-15")
+
+
+def test_image_names_with_a_clock_offset_are_refused(tmp_path):
+    src = tmp_path / "photos"
+    src.mkdir()
+    _jpeg(src / "IMG_0001.JPG", "SONY")
+    result = CliRunner().invoke(app, ["process", str(DATA / "POS.txt"), str(DATA / "Kamera.txt"),
+                                      "-o", str(tmp_path / "eo.csv"), "--images", str(src),
+                                      "--export", f"images:{tmp_path / 'out'}", "--image-names", PATTERN,
+                                      "--camera-clock-offset", "3"])
+    assert result.exit_code == 2 and "pair them by name" in result.output.replace("\n", " ")
+
+
+def test_batch_regular_triggering_points_to_flight_toml(tmp_path):
+    """batch has neither --image-names nor --camera-clock-offset: its advice names flight.toml's image_names."""
+    from georef.batch import discover, process_flight
+
+    folder = tmp_path / "flights" / "f1"
+    folder.mkdir(parents=True)
+    for data in ("POS.txt", "Kamera.txt", "flight.toml"):
+        (folder / data).symlink_to(DATA / data)
+    (folder / "images").mkdir()
+    frames = np.loadtxt(DATA / "Kamera.txt", skiprows=1)
+    for number, second, ms in frames[200:215]:
+        _jpeg(folder / "images" / f"P{int(number):04d}.JPG", "SONY", DAY + second + ms / 1000 + 0.8)
+    job = next(iter(discover(tmp_path / "flights")))
+    row = process_flight(job, str(tmp_path / "out"), exports=(("images", "images"),))
+    assert row["status"] == "failed" and row["failure"] == "input", row["message"]
+    assert "not unique" in row["message"] and "image_names in the flight's flight.toml" in row["message"]
+    assert "--image-names" not in row["message"]
+
+
+# The hand-off benchmark's findings (benchmarks/handoffs.py): a long flight on a drifting camera clock.
+def _long_regular_flight(count: int, drift_ppm: float, seed: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """Exposures every 2.0 s (2 ms jitter) and their capture times on a camera 7200.317 s ahead of UTC (UTC+2, no
+    zone tag) running ``drift_ppm`` fast, in ms: (EO times [UTC s of day], camera POSIX [s], true offset [s])."""
+    rng = np.random.default_rng(seed)
+    eo_time = 36000.0 + 2.0 * np.arange(count) + rng.normal(0.0, 0.002, count)
+    offset = 7200.317
+    camera = (DAY + eo_time + offset + drift_ppm * 1e-6 * (eo_time - eo_time.mean())
+              + rng.normal(0.0, 0.002, count))
+    return eo_time, np.floor(camera * 1000.0) / 1000.0, offset
+
+
+def test_a_given_offset_on_a_drifting_clock_matches_every_photo():
+    """3000 photos over 100 min, 25 ppm fast: +-75 ms of drift at the ends, beyond the 50 ms tolerance. Unfitted,
+    a third of the photos found no frame and an offset two intervals away matched more by chance, so the right
+    offset was refused. The drift is fitted from the middle outwards: every photo on its own frame, the drift
+    recovered; an offset an interval off is still refused, one 30 ms off still pairs every photo and shows it."""
+    eo_time, camera, offset = _long_regular_flight(3000, 25.0, 31)
+    resolution = np.full(len(camera), 1e-3)
+    match = match_capture_times(camera, resolution, eo_time, fixed_offset_s=offset)
+    assert np.array_equal(match.frame_index, np.arange(len(camera))) and match.fixed
+    assert match.offset_s == offset and match.drift_ppm == pytest.approx(25.0, abs=0.5)
+    assert match.alternatives == [] and match.spread_s < 0.003
+    for given in (offset - 2.0, offset + 2.0):
+        with pytest.raises(ClockMatchError, match="one trigger interval off") as err:
+            match_capture_times(camera, resolution, eo_time, fixed_offset_s=given)
+        assert "matches 2999 of 3000" in str(err.value) and "matches 3000" in str(err.value)
+    near = match_capture_times(camera, resolution, eo_time, fixed_offset_s=offset + 0.03)
+    assert np.array_equal(near.frame_index, np.arange(len(camera))) and near.offset_s == offset + 0.03
+    # the residuals are taken from the given offset: their median shows it 30 ms too large
+    assert float(np.median(near.residual_s)) == pytest.approx(-0.03, abs=0.002)
+
+
+def test_not_unique_lists_the_best_fitting_offset_first():
+    """1200 photos every 2 s, 50 ppm fast: scored without drift, the true offset lost photos at both ends and one
+    shifted by 53 intervals (1147 photos of the overlap) was named best, the true one (1200) only a rival. Each
+    offset's drift is fitted before they are ranked."""
+    eo_time, camera, offset = _long_regular_flight(1200, 50.0, 32)
+    with pytest.raises(ClockMatchError, match="not unique") as err:
+        match_capture_times(camera, np.full(len(camera), 1e-3), eo_time)
+    listed = re.search(r"fit about equally[^:]*: (.*)", str(err.value)).group(1)
+    assert listed.startswith(f"{offset:+.3f} s (1200 of 1200 photos")
+    # then the offsets an interval either side, each matching all but one photo
+    rivals = listed.split("tolerance), ")[1]
+    assert rivals.startswith((f"{offset - 2.0:+.3f} s (1199), {offset + 2.0:+.3f} s (1199)",
+                              f"{offset + 2.0:+.3f} s (1199), {offset - 2.0:+.3f} s (1199)"))
+
+
+@pytest.mark.parametrize("regular", [True, False])
+def test_the_pruned_search_finds_every_rival_that_refining_every_proposal_finds(monkeypatch, regular):
+    """The search scores its proposals coarsely on a sample of photos and refines only those that can still rival
+    the best (it was 7 n proposals x n photos). Checked against refining every proposal: the same best offset and
+    the same rivals, with the sample (here 40 of 150 photos) smaller than the flight."""
+    from georef.io import image_match
+
+    monkeypatch.setattr(image_match, "SAMPLE_PHOTOS", 40)
+    monkeypatch.setattr(image_match, "SAMPLE_END_PHOTOS", 5)
+    rng = np.random.default_rng(33)
+    steps = np.full(150, 2.0) if regular else rng.uniform(1.2, 3.0, 150)
+    if regular:
+        steps[60] += 0.7  # a turn: one interval away loses a photo there and one at an end, two away four
+    eo_time = 36000.0 + np.cumsum(steps) + rng.normal(0.0, 0.002, 150)
+    camera_s = eo_time + 7200.317 + 40e-6 * (eo_time - eo_time.mean()) + rng.normal(0.0, 0.002, 150)
+    tol = np.full(150, image_match.CLOCK_TOLERANCE_S)
+    order = np.arange(150)
+    reference = float(np.mean(camera_s))
+    pruned = image_match._search(eo_time, order, camera_s, tol, reference)
+    proposals = image_match._cluster((camera_s[image_match._anchors(150)][:, None] - eo_time[None, :]).ravel(),
+                                     float(np.min(tol)))
+    every = [image_match._refine(eo_time, order, camera_s, tol, float(d), reference) for d in proposals]
+    best = max(fit.matched for fit in every)
+    assert pruned[0].matched == best == 150 and pruned[0].offset == pytest.approx(7200.317, abs=0.002)
+
+    def rivals(fits):
+        margin = image_match.MIN_UNMATCHED_MARGIN
+        close = {round(fit.offset, 1): fit.matched for fit in fits if fit.matched > best - margin}
+        return sorted(close.items())
+
+    assert rivals(pruned) == rivals(every)
+    assert len(rivals(every)) == (3 if regular else 1)  # the best itself and, regular, one interval either way
+
+
+def test_proposals_cluster_into_groups_no_wider_than_the_tolerance():
+    """A chain of proposals 30 ms apart is cut into groups no wider than 50 ms, each stood for by its middle (so
+    within 25 ms of every member: the search's coarse tolerance allows for that)."""
+    from georef.io.image_match import _cluster
+
+    offsets = np.array([1.0, 0.09, 0.0, 0.06, 0.03, 2.0, 2.02])
+    assert _cluster(offsets, 0.05) == pytest.approx([0.015, 0.075, 1.0, 2.01])

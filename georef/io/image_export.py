@@ -23,7 +23,11 @@ in the run's output; frames named for a photo that is not in ``SRC`` are counted
 from __future__ import annotations
 
 import csv
+import datetime as dt
 import io
+import re
+import string
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -41,6 +45,7 @@ from georef.io.image_tags import IMAGE_SUFFIXES, Geotag, SourceImage, read_sourc
 if TYPE_CHECKING:
     from georef.eo import EoColumns
     from georef.frames.heights import OutputFrames
+    from georef.qc import Check
 
 #: the table of every photo, written into DIR
 REPORT_NAME = "georef_images.csv"
@@ -52,6 +57,12 @@ NOT_TAGGED = "not tagged"
 BY_NAME = "image names"
 #: a named photo whose capture time is this far [s] from its frame's (after the median offset) is reported
 NAMED_DISAGREES_S = 1.0
+#: the largest camera clock offset [s] a time zone explains: UTC-12 to UTC+14, and an hour for a clock set by
+#: hand or a summer time not switched; beyond it the flight's date is wrong (``--utc-date``) or the camera's
+MAX_ZONE_OFFSET_S = 15 * 3600.0
+#: fewer photos than this share of the folder's matched by name fails the images check (a wrong pattern or CSV);
+#: fewer than all of them is a warning
+NAMED_FAIL_SHARE = 0.5
 BY_CAPTURE_TIME = "capture time"
 
 
@@ -118,17 +129,51 @@ class ImageExport:
         if self.clock is not None:
             drift = f", drift {self.clock.drift_ppm:+.1f} ppm" if self.clock.drift_ppm else ""
             given = " (given)" if self.clock.fixed else ""
+            bias = ""
+            if self.clock.fixed and self.clock.matched:
+                bias = f", median residual {float(np.nanmedian(self.clock.residual_s)) * 1e3:+.1f} ms"
             out.append(f"images: camera clock minus UTC {self.clock.offset_s:+.3f} s{given}{drift}, spread "
-                       f"{self.clock.spread_s:.3f} s over {self.clock.matched} photos")
+                       f"{self.clock.spread_s:.3f} s{bias} over {self.clock.matched} photos")
+            if self.clock.fixed and self.clock.alternatives:
+                shown = ", ".join(f"{fit.offset_s:+.3f} s" for fit in self.clock.alternatives)
+                out.append(f"images: warning: the offsets {shown} pair the photos with frames one or two exposures "
+                           f"away and match as many photos ({self.clock.matched}): the pairing rests on the given "
+                           "offset being right to within half the trigger interval")
         out.append("images: GPSDateStamp " + (f"from {self.date_source}" if self.date_source else
                                                "not written (the flight's UTC date is unknown: give --utc-date)"))
         return out
+
+    def check(self) -> Check | None:
+        """The QC check of a match by name (``None`` by capture time, whose match is refused below half): a fail
+        when fewer than :data:`NAMED_FAIL_SHARE` of the folder's photos have a named frame, a warning when some
+        photo has none or some named photo is missing."""
+        from georef.qc import FAIL, PASS, WARN, Check
+
+        if self.method != BY_NAME:
+            return None
+        unnamed = [row.image for row in self.rows if not row.frame]
+        matched = len(self.rows) - len(unnamed)
+        missing = self.frames_without_photo
+        found = (f"{matched} of {len(self.rows)} photos in {self.source_dir} have a frame named by --image-names"
+                 + (f"; {len(unnamed)} have none ({', '.join(unnamed[:3])}{' ...' if len(unnamed) > 3 else ''})"
+                    if unnamed else "")
+                 + (f"; {len(missing)} frames' named photos are not in the folder (frames {', '.join(missing[:3])}"
+                    f"{' ...' if len(missing) > 3 else ''})" if missing else ""))
+        if matched < NAMED_FAIL_SHARE * len(self.rows):
+            return Check("images", FAIL, f"{found}. Most photos were left without geotags: check --image-names "
+                         "(or image_names in flight.toml) against the folder's file names and the frame numbers")
+        if unnamed or missing:
+            return Check("images", WARN, f"{found}. See {REPORT_NAME}; if photos should have a frame, check "
+                         "--image-names against the folder's file names")
+        return Check("images", PASS, found)
 
     def to_dict(self) -> dict:
         """For the run's JSON summary."""
         clock = None if self.clock is None else {
             "offset_s": self.clock.offset_s, "drift_ppm": self.clock.drift_ppm, "spread_s": self.clock.spread_s,
-            "matched": self.clock.matched, "given": self.clock.fixed}
+            "matched": self.clock.matched, "given": self.clock.fixed,
+            # a given offset's neighbours an interval away that match as many photos (the pairing rests on it)
+            "equal_offsets_s": [fit.offset_s for fit in self.clock.alternatives] if self.clock.fixed else []}
         return {"source": str(self.source_dir), "target": str(self.target_dir), "matched_by": self.method,
                 "photos": len(self.rows), "tagged": self.count(TAGGED), "tagged_flagged": self.count(TAGGED_FLAGGED),
                 "not_tagged": self.count(NOT_TAGGED), "vertical_datum": self.vertical_datum,
@@ -141,9 +186,37 @@ def source_photos(source_dir: Path) -> list[Path]:
     return sorted(p for p in Path(source_dir).iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
 
 
-def check_image_export(source_dir: Path | None, target_dir: Path, frames: OutputFrames | None) -> None:
+def _name_matcher(image_names: str) -> tuple[str, Callable[[str, bool], bool]]:
+    """What ``--image-names`` names (its text for messages) and a test of a file name against it, exact or
+    ignoring case: a pattern's fields stand for any text, a CSV's names are taken as listed."""
+    from georef.io.image_names import ImageNames
+
+    names = ImageNames.parse(image_names)
+    if names.pattern is not None:
+        parts = [re.escape(literal) + (".+?" if field is not None else "")
+                 for literal, field, _, _ in string.Formatter().parse(names.pattern)]
+        exact, folded = re.compile("".join(parts)), re.compile("".join(parts), re.IGNORECASE)
+        return names.source, lambda name, fold: bool((folded if fold else exact).fullmatch(name))
+    listed = set(names.table.values())
+    lowered = {name.lower() for name in listed}
+    return names.source, lambda name, fold: (name.lower() in lowered) if fold else (name in listed)
+
+
+def _no_photo_named(source_dir: Path, what: str, named: list[str], present: list[str], case_only: list[str]) -> str:
+    """The message when no photo of the folder has a name that ``what`` gives."""
+    hint = (f"; {len(case_only)} names differ only in case (e.g. {case_only[0]}): file names are matched exactly, "
+            "so write the pattern's or the CSV's names as the files are named") if case_only else ""
+    shown = f" (e.g. {', '.join(named[:3])})" if named else ""
+    return (f"--images {source_dir}: none of its {len(present)} photos ({', '.join(present[:3])}"
+            f"{' ...' if len(present) > 3 else ''}) has a name that --image-names {what} gives{shown}{hint}; "
+            "no copy could be matched to a frame")
+
+
+def check_image_export(source_dir: Path | None, target_dir: Path, frames: OutputFrames | None,
+                       image_names: str | None = None) -> None:
     """Before processing: ``--images`` is a folder with photos, ``DIR`` is another folder (never the photos' own:
-    the originals are never written), and PROJ has the EGM96 grid for the altitudes."""
+    the originals are never written), PROJ has the EGM96 grid for the altitudes, and with ``image_names`` (the
+    ``--image-names`` pattern or CSV) at least one photo has a name it can give."""
     from georef.frames.heights import OutputFrames
 
     if source_dir is None:
@@ -159,6 +232,12 @@ def check_image_export(source_dir: Path | None, target_dir: Path, frames: Output
         raise ImageExportError(f"--export images:{target_dir} is the photos' own folder: georef never writes over the "
                                "originals; name another folder")
     (frames or OutputFrames()).egm96([45.0], [15.0], [0.0])  # the EGM96 grid is there, or GeoidGridError now
+    if image_names:
+        what, named = _name_matcher(image_names)
+        present = [path.name for path in source_photos(source_dir)]
+        if not any(named(name, False) for name in present):
+            raise ImageExportError(_no_photo_named(Path(source_dir), what, [], present,
+                                                   [name for name in present if named(name, True)]))
 
 
 def _untagged_reason(flag: str, values: list[float]) -> str | None:
@@ -196,7 +275,7 @@ def _match(photos: list[SourceImage], columns: EoColumns, fixed_offset_s: float 
         return rows, reasons, clock
     if not timed:
         raise ClockMatchError(f"{photos[0].path.parent}: no photo has a capture time (EXIF DateTimeOriginal) to "
-                              "match it to its frame: name the photos with --image-names")
+                              "match it to its frame", "Name the photos with --image-names")
     clock = match_capture_times(posix, resolution, times, fixed_offset_s)
     for k, i in enumerate(timed):
         rows[i] = clock.frame_index[k]
@@ -222,15 +301,24 @@ def export_images(columns: EoColumns, source_dir: Path, target_dir: Path, frames
     photos = [read_source(path) for path in source_photos(source_dir)]
     by_name = "image" in columns
     rows, reasons, clock = _match(photos, columns, fixed_offset_s, by_name)
+    if by_name and not (rows >= 0).any():
+        present = [photo.path.name for photo in photos]
+        named = [str(name) for name in np.asarray(columns["image"], dtype=object)]
+        folded = {name.lower() for name in named}
+        what = "(the EO table's image column) or flight.toml's image_names"
+        raise ImageExportError(_no_photo_named(Path(source_dir), what, named, present,
+                                               [name for name in present if name.lower() in folded]))
     result = ImageExport(Path(source_dir), Path(target_dir), BY_NAME if by_name else BY_CAPTURE_TIME, clock=clock)
     if day_start_posix is None and clock is not None:
         day_start_posix = clock.day_start_posix
         date_source = "the photos' capture times (camera clock within 12 h of UTC)"
-    elif day_start_posix is not None and clock is not None and not clock.fixed:
-        # the photos' day and the log's agree but for the camera's time zone: report the offset from the known day
-        shift = clock.day_start_posix - day_start_posix
-        clock = replace(clock, offset_s=clock.offset_s + shift, day_start_posix=day_start_posix)
-        result.clock = clock
+    elif day_start_posix is not None and clock is not None:
+        _check_day(photos, clock, day_start_posix, date_source or "the flight's date")
+        if not clock.fixed:
+            # the photos' day and the log's agree but for the camera's time zone: the offset from the known day
+            shift = clock.day_start_posix - day_start_posix
+            clock = replace(clock, offset_s=clock.offset_s + shift, day_start_posix=day_start_posix)
+            result.clock = clock
     result.date_source = date_source
     if by_name:
         present = {p.path.name for p in photos}
@@ -282,6 +370,32 @@ def export_images(columns: EoColumns, source_dir: Path, target_dir: Path, frames
                                     time_s, residual[i]))
     _write_report(result)
     return result
+
+
+def _utc_date(posix_s: float) -> str:
+    return dt.datetime.fromtimestamp(posix_s, dt.UTC).date().isoformat()
+
+
+def _check_day(photos: list[SourceImage], clock: ClockMatch, day_start_posix: float, date_source: str) -> None:
+    """The flight's UTC date (the log's, or ``--utc-date``) and the photos' capture times agree to within a time
+    zone: a camera clock more than :data:`MAX_ZONE_OFFSET_S` off UTC, or a given offset that puts the exposures
+    on another day, means a wrong date, and every copy's GPSDateStamp would be wrong."""
+    dates = sorted({_utc_date(p.capture.posix_s) for p in photos if p.capture is not None})
+    taken = f"the photos were taken {' to '.join(dict.fromkeys([dates[0], dates[-1]]))} (camera clock)"
+    flight = _utc_date(day_start_posix)
+    if clock.fixed:
+        if abs(clock.day_start_posix - day_start_posix) > 1.0:
+            raise ImageExportError(
+                f"{taken}: with the given camera clock offset {clock.offset_s:+.3f} s they were exposed on "
+                f"{_utc_date(clock.day_start_posix)} UTC, and {date_source} says {flight}; check the date and "
+                "--camera-clock-offset")
+        return
+    offset = clock.offset_s + clock.day_start_posix - day_start_posix
+    if abs(offset) > MAX_ZONE_OFFSET_S:
+        raise ImageExportError(
+            f"{taken}, and {date_source} puts the flight on {flight} UTC: the camera clock would be "
+            f"{offset:+.3f} s ({offset / 3600.0:+.1f} h) off UTC, beyond any time zone (at most "
+            f"{MAX_ZONE_OFFSET_S / 3600.0:.0f} h); the date is wrong: check --utc-date (or the camera's date)")
 
 
 def _write_report(result: ImageExport) -> None:
