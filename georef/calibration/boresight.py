@@ -64,6 +64,13 @@ SIGNIFICANT = 2.0
 JACKKNIFE_RATIO_MAX = 2.5
 #: photos this far outside the process summary's POS time span [s] mean the summary is of another flight
 SPAN_TOLERANCE_S = 1.0
+#: named axes of the (3,) vectors: boresight roll, pitch, yaw angles; body x, y, z; NED north, east, down
+ROLL, PITCH, YAW = 0, 1, 2
+BODY_X, BODY_Y, BODY_Z = 0, 1, 2
+NORTH, EAST, DOWN = 0, 1, 2
+#: the level angles (roll, pitch) and the horizontal NED axes (north, east)
+LEVEL = slice(ROLL, PITCH + 1)
+HORIZONTAL = slice(NORTH, EAST + 1)
 #: where the body-fixed INS errors in the sigmas come from
 SIGMA_FROM_FILTER = "the navigation filter's bias sigmas (process summary)"
 SIGMA_CONSERVATIVE = "conservative bounds from the EO's sigmas (no process summary)"
@@ -103,13 +110,76 @@ class MatchedPhotos:
         return len(self.time)
 
 
-EO_NEEDED = ("frame", "time", "lat", "lon", "height", "roll", "pitch", "yaw", "sigma_n", "sigma_e", "sigma_u",
-             "sigma_roll", "sigma_pitch", "sigma_yaw", "flag")
+#: the EO columns a usable row has finite values in
+EO_NUMERIC = ("lat", "lon", "height", "roll", "pitch", "yaw", "sigma_n", "sigma_e", "sigma_u", "sigma_roll",
+              "sigma_pitch", "sigma_yaw")
+EO_NEEDED = ("frame", "time", *EO_NUMERIC, "flag")
 
 
 def _stem(name: str) -> str:
     base = name.replace("\\", "/").rsplit("/", 1)[-1]
     return base.rsplit(".", 1)[0].lower() if "." in base else base.lower()
+
+
+@dataclass(frozen=True)
+class _Pairing:
+    """EO rows paired with adjusted cameras by name: EO table row ``eo_row[k]`` is adjusted camera ``camera[k]``
+    (index into the block)."""
+
+    eo_row: np.ndarray
+    camera: np.ndarray
+    #: adjusted cameras no EO row names
+    unmatched_labels: list[str]
+    #: distinct EO rows some camera matched (usable or not)
+    eo_rows_matched: int
+    #: pairs dropped because the EO row is flagged or has a non-finite value
+    flagged: int = 0
+
+
+def _name_keys(frames: list[str], images: list[str]) -> dict[str, int]:
+    """EO row of each name a camera label may match: the image name, it without folder and extension
+    (lower case), the frame number; the first row wins."""
+    keys: dict[str, int] = {}
+    for row, (frame, image) in enumerate(zip(frames, images, strict=True)):
+        for key in (image, _stem(image) if image else "", frame):
+            if key and key not in keys:
+                keys[key] = row
+    return keys
+
+
+def _pair_by_name(frames: list[str], images: list[str], cameras: AdjustedCameras) -> _Pairing:
+    """Pair each adjusted camera with the EO row its label names (exact, then stem, then lower case); raises
+    :class:`CalibrationInputError` when no label matches."""
+    keys = _name_keys(frames, images)
+    pairs: list[tuple[int, int]] = []
+    unmatched: list[str] = []
+    for k, label in enumerate(cameras.label):
+        row = next((keys[key] for key in (label, _stem(label), label.lower()) if key in keys), None)
+        if row is None:
+            unmatched.append(label)
+        else:
+            pairs.append((row, k))
+    if not pairs:
+        shown = ", ".join(repr(x) for x in cameras.label[:3])
+        eo_shown = ", ".join(repr(x) for x in (images if images[0] else frames)[:3])
+        raise CalibrationInputError(cameras.path, None, None, f"no camera label matches an EO row (labels such as "
+                                    f"{shown}; EO images/frames such as {eo_shown}): process with --image-names so "
+                                    "the EO table names the images")
+    return _Pairing(eo_row=np.array([r for r, _ in pairs]), camera=np.array([c for _, c in pairs]),
+                    unmatched_labels=unmatched, eo_rows_matched=len(set(int(r) for r, _ in pairs)))
+
+
+def _usable_in_time_order(eo: Any, pairing: _Pairing) -> _Pairing:
+    """The pairs whose EO row is not flagged and has finite ``EO_NUMERIC`` values, sorted by EO time [s]
+    (stable); ``flagged`` counts the pairs dropped."""
+    flags = np.asarray(eo["flag"].fillna("").astype(str))
+    rows, cams = pairing.eo_row, pairing.camera
+    numeric = np.column_stack([np.asarray(eo[c], float)[rows] for c in EO_NUMERIC])
+    usable = (flags[rows] == "") & np.all(np.isfinite(numeric), axis=1)
+    rows, cams = rows[usable], cams[usable]
+    order = np.argsort(np.asarray(eo["time"], float)[rows], kind="stable")
+    return _Pairing(eo_row=rows[order], camera=cams[order], unmatched_labels=pairing.unmatched_labels,
+                    eo_rows_matched=pairing.eo_rows_matched, flagged=int(np.count_nonzero(~usable)))
 
 
 def match_photos(eo: Any, eo_path: Any, cameras: AdjustedCameras, crs: str, use_orthometric: bool = True
@@ -126,36 +196,10 @@ def match_photos(eo: Any, eo_path: Any, cameras: AdjustedCameras, crs: str, use_
     if missing:
         raise CalibrationInputError(eo_path, 1, missing[0], f"not an EO table of georef process: no column(s) "
                                     f"{', '.join(missing)}")
-    keys: dict[str, int] = {}
     frames = [str(f) for f in eo["frame"]]
     images = [str(v) for v in eo["image"]] if "image" in eo.columns else [""] * len(frames)
-    for row, (frame, image) in enumerate(zip(frames, images, strict=True)):
-        for key in (image, _stem(image) if image else "", frame):
-            if key and key not in keys:
-                keys[key] = row
-    pairs: list[tuple[int, int]] = []
-    unmatched: list[str] = []
-    for k, label in enumerate(cameras.label):
-        row = next((keys[key] for key in (label, _stem(label), label.lower()) if key in keys), None)
-        if row is None:
-            unmatched.append(label)
-        else:
-            pairs.append((row, k))
-    if not pairs:
-        shown = ", ".join(repr(x) for x in cameras.label[:3])
-        eo_shown = ", ".join(repr(x) for x in (images if images[0] else frames)[:3])
-        raise CalibrationInputError(cameras.path, None, None, f"no camera label matches an EO row (labels such as "
-                                    f"{shown}; EO images/frames such as {eo_shown}): process with --image-names so "
-                                    "the EO table names the images")
-    flags = np.asarray(eo["flag"].fillna("").astype(str))
-    rows = np.array([r for r, _ in pairs])
-    cams = np.array([c for _, c in pairs])
-    numeric = np.column_stack([np.asarray(eo[c], float)[rows] for c in EO_NEEDED[2:14]])
-    usable = (flags[rows] == "") & np.all(np.isfinite(numeric), axis=1)
-    flagged = int(np.count_nonzero(~usable))
-    rows, cams = rows[usable], cams[usable]
-    order = np.argsort(np.asarray(eo["time"], float)[rows], kind="stable")
-    rows, cams = rows[order], cams[order]
+    pairing = _usable_in_time_order(eo, _pair_by_name(frames, images, cameras))
+    rows, cams = pairing.eo_row, pairing.camera
 
     def col(name: str) -> np.ndarray:
         return np.asarray(eo[name], float)[rows]
@@ -169,14 +213,14 @@ def match_photos(eo: Any, eo_path: Any, cameras: AdjustedCameras, crs: str, use_
                                cameras.height[cams] - height, convergence, scale)
     C_c_n_eo = euler_to_dcm(np.radians(col("roll")), np.radians(col("pitch")), np.radians(col("yaw")))
     C_c_n_adjusted = image_to_ned(cameras.R_i_m[cams], convergence)
-    matched_rows = set(int(r) for r, _ in pairs)
     return MatchedPhotos(
         label=np.array([cameras.label[c] for c in cams], dtype=object), frame=np.array(frames, dtype=object)[rows],
         time=col("time"), C_c_n_eo=C_c_n_eo, C_c_n_adjusted=C_c_n_adjusted, d_ned=d_ned,
         sigma_attitude=np.radians(np.column_stack([col("sigma_roll"), col("sigma_pitch"), col("sigma_yaw")])),
         sigma_position=np.column_stack([col("sigma_n"), col("sigma_e"), col("sigma_u")]),
         roll_deg=col("roll"), heading_deg=col("yaw"), grid=np.column_stack([easting, northing]),
-        unmatched_labels=unmatched, eo_rows_flagged=flagged, eo_rows_without_camera=len(frames) - len(matched_rows),
+        unmatched_labels=pairing.unmatched_labels, eo_rows_flagged=pairing.flagged,
+        eo_rows_without_camera=len(frames) - pairing.eo_rows_matched,
         gravity_m_s2=float(np.median(normal_gravity(np.radians(lat), col("height")))))
 
 
@@ -262,10 +306,28 @@ def _effective_count(v: np.ndarray) -> float:
     return max(1.0, n * (1.0 - r1) / (1.0 + r1))
 
 
-def _strip_means(values: np.ndarray, frame_of: np.ndarray, eo_var: np.ndarray, strips: Strips
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per strip: mean of ``values`` (n, 3), mean of the NED->frame rotations (3, 3), the variance of the mean
-    from the within-strip scatter and its effective photo count (3), the median EO variance in that frame (3)."""
+@dataclass(frozen=True)
+class StripMeans:
+    """One quantity averaged per strip, in its frame (the camera frame for the attitude residual [rad], the body
+    frame for the position difference [m]).
+
+    ``means`` (strips, 3); ``columns`` (strips, 3, 3) the strip's mean NED->frame rotation; ``within`` (strips, 3)
+    the variance of the mean from the within-strip scatter over its effective photo count; ``eo_var`` (strips, 3)
+    the median EO variance in that frame (variances in the quantity's unit squared)."""
+
+    means: np.ndarray
+    columns: np.ndarray
+    within: np.ndarray
+    eo_var: np.ndarray
+
+    def subset(self, keep: np.ndarray) -> StripMeans:
+        """The strips ``keep`` selects (boolean or index array)."""
+        return StripMeans(self.means[keep], self.columns[keep], self.within[keep], self.eo_var[keep])
+
+
+def _strip_means(values: np.ndarray, frame_of: np.ndarray, eo_var: np.ndarray, strips: Strips) -> StripMeans:
+    """Per strip: mean of ``values`` (n, 3), mean of the NED->frame rotations ``frame_of`` (n, 3, 3), the variance
+    of the mean from the within-strip scatter and its effective photo count, the median of ``eo_var`` (n, 3)."""
     means, columns, within, eo = [], [], [], []
     for s in range(strips.count):
         members = strips.index == s
@@ -274,7 +336,7 @@ def _strip_means(values: np.ndarray, frame_of: np.ndarray, eo_var: np.ndarray, s
         columns.append(frame_of[members].mean(axis=0))
         within.append(v.var(axis=0, ddof=1) / _effective_count(v))
         eo.append(np.median(eo_var[members], axis=0))
-    return np.array(means), np.array(columns), np.array(within), np.array(eo)
+    return StripMeans(np.array(means), np.array(columns), np.array(within), np.array(eo))
 
 
 def _design(columns: np.ndarray, with_tilt: bool) -> np.ndarray:
@@ -293,8 +355,7 @@ def heading_diversity(columns: np.ndarray) -> float:
     return float(singular[-1] / singular[0])
 
 
-def fit_offset(means: np.ndarray, columns: np.ndarray, within: np.ndarray, eo_var: np.ndarray, with_tilt: bool,
-               iterations: int = 200) -> OffsetFit:
+def fit_offset(strip_means: StripMeans, with_tilt: bool, iterations: int = 200) -> OffsetFit:
     """Generalised least squares of the strip means with a between-strip INS error in NED.
 
     Strip s: ``y_s = offset + A_s (e0 + eta_s) + w_s`` with ``A_s`` the strip's mean NED->frame rotation, ``e0``
@@ -304,6 +365,7 @@ def fit_offset(means: np.ndarray, columns: np.ndarray, within: np.ndarray, eo_va
     error leaks into the camera's x and y through its pitch and roll, on every heading alike, and the GLS removes
     the part of that leak that varies from strip to strip. ``tau`` by EM-REML (Harville 1977; never negative);
     with no degrees of freedom left ``tau`` is the EO's median sigma."""
+    means, columns, within, eo_var = strip_means.means, strip_means.columns, strip_means.within, strip_means.eo_var
     n = len(means)
     y = means.reshape(-1)
     X = _design(columns, with_tilt)
@@ -342,19 +404,18 @@ def fit_offset(means: np.ndarray, columns: np.ndarray, within: np.ndarray, eo_va
                      dof=int(3 * n - p), residuals=r.reshape(n, 3))
 
 
-def jackknife(means: np.ndarray, columns: np.ndarray, within: np.ndarray, eo_var: np.ndarray, with_tilt: bool
-              ) -> np.ndarray | None:
-    """Delete-one-strip jackknife sigma (3) of the offset; None with fewer than ``MIN_STRIPS_GOOD`` strips or
-    when a strip's removal leaves the tilt unobservable."""
-    n = len(means)
+def jackknife(strip_means: StripMeans, with_tilt: bool) -> np.ndarray | None:
+    """Delete-one-strip jackknife sigma (3) of the offset [the strip means' unit and frame]; None with fewer than
+    ``MIN_STRIPS_GOOD`` strips or when a strip's removal leaves the tilt unobservable."""
+    n = len(strip_means.means)
     if n < MIN_STRIPS_GOOD:
         return None
     estimates = []
     for s in range(n):
         keep = np.arange(n) != s
-        if with_tilt and heading_diversity(columns[keep]) < HEADING_DIVERSITY_MIN * 0.25:
+        if with_tilt and heading_diversity(strip_means.columns[keep]) < HEADING_DIVERSITY_MIN * 0.25:
             return None
-        estimates.append(fit_offset(means[keep], columns[keep], within[keep], eo_var[keep], with_tilt).offset)
+        estimates.append(fit_offset(strip_means.subset(keep), with_tilt).offset)
     estimates_arr = np.array(estimates)
     return np.sqrt((n - 1) / n * np.sum((estimates_arr - estimates_arr.mean(axis=0)) ** 2, axis=0))
 
@@ -436,6 +497,315 @@ class BoresightCalibration:
                 "sigma_body_fixed_source": self.sigma_source, "problems": self.problems, "advice": self.advice}
 
 
+def _check_photos(photos: MatchedPhotos, source: Any, process: ProcessFigures | None) -> None:
+    """Raise :class:`CalibrationInputError` with fewer than ``MIN_PHOTOS`` photos, or photos more than
+    ``SPAN_TOLERANCE_S`` outside the process summary's POS time span [s UTC of day] (another flight's summary)."""
+    if len(photos) < MIN_PHOTOS:
+        raise CalibrationInputError(source, None, None, f"{len(photos)} usable photos match (need at least "
+                                    f"{MIN_PHOTOS}; {photos.eo_rows_flagged} matched rows are flagged in the EO)")
+    if process is not None:
+        first, last = process.time_span_s
+        outside = int(np.count_nonzero((photos.time < first - SPAN_TOLERANCE_S)
+                                       | (photos.time > last + SPAN_TOLERANCE_S)))
+        if outside:
+            raise CalibrationInputError(process.path, None, "summary.time_span_s", f"{outside} of the {len(photos)} "
+                                        f"photos lie outside this run's POS time span {first:.1f}-{last:.1f} s: the "
+                                        "summary of another flight? Pass the --summary-json of the run that wrote "
+                                        "the EO table")
+
+
+def _straight_strips(photos: MatchedPhotos, source: Any) -> Strips:
+    """The photos' strips (:func:`split_strips`); raises :class:`CalibrationInputError` when there is none."""
+    strips = split_strips(photos.time, photos.heading_deg, photos.roll_deg)
+    if strips.count == 0:
+        raise CalibrationInputError(source, None, None, f"no strip: none of the {len(photos)} matched photos form a "
+                                    f"straight run of {MIN_STRIP_PHOTOS} or more (heading steady within "
+                                    f"{STRIP_HEADING_TOL_DEG:g} deg, roll under {TURN_ROLL_DEG:g} deg)")
+    return strips
+
+
+@dataclass(frozen=True)
+class PhotoResiduals:
+    """Per photo (n), the EO camera against the adjusted one in the frames of the model (module docstring).
+
+    ``rho`` (n, 3) the small rotation from the EO to the adjusted camera [rad, camera frame]; ``p`` (n, 3) the
+    adjusted minus the EO camera position [m, body frame]; ``C_c_b`` (3, 3) camera->body of the configured
+    boresight; ``C_n_c``, ``C_n_b`` (n, 3, 3) the EO's NED->camera and NED->body rotations; ``att_var_n`` (n, 3) the
+    EO's roll, pitch, yaw variances taken as NED tilt variances [rad^2]; ``att_var_c`` (n, 3) those in the camera
+    axes [rad^2]; ``pos_var_b`` (n, 3) the EO's north, east, up position variances in the body axes [m^2]."""
+
+    rho: np.ndarray
+    p: np.ndarray
+    C_c_b: np.ndarray
+    C_n_c: np.ndarray
+    C_n_b: np.ndarray
+    att_var_n: np.ndarray
+    att_var_c: np.ndarray
+    pos_var_b: np.ndarray
+
+
+def _photo_residuals(photos: MatchedPhotos, boresight_rad: np.ndarray) -> PhotoResiduals:
+    """The per-photo residuals and EO variances, with the configured boresight ``boresight_rad`` (roll_b, pitch_b,
+    yaw_b) [rad]."""
+    C_c_b = boresight_dcm(boresight_rad)
+    C_b_n = photos.C_c_n_eo @ C_c_b.T
+    C_n_c = np.swapaxes(photos.C_c_n_eo, -1, -2)
+    C_n_b = np.swapaxes(C_b_n, -1, -2)
+    # EO variances in the camera / body axes: the EO's roll, pitch, yaw sigmas taken as NED tilt sigmas
+    # (small roll and pitch), its N, E, U position sigmas as NED
+    att_var_n = photos.sigma_attitude**2
+    return PhotoResiduals(rho=camera_rotation_residual(photos.C_c_n_eo, photos.C_c_n_adjusted),
+                          p=body_offset(C_b_n, photos.d_ned), C_c_b=C_c_b, C_n_c=C_n_c, C_n_b=C_n_b,
+                          att_var_n=att_var_n, att_var_c=np.einsum("nij,nj->ni", C_n_c**2, att_var_n),
+                          pos_var_b=np.einsum("nij,nj->ni", C_n_b**2, photos.sigma_position**2))
+
+
+@dataclass(frozen=True)
+class StripFits:
+    """The variance-component fits (:func:`fit_offset`) of the strip means of the attitude residual [rad, camera
+    frame] and the position difference [m, body frame], with their delete-one-strip jackknife sigmas (3, or None).
+
+    ``with_tilt``: the flight-constant horizontal NED error is estimated (``heading_diversity`` of the strips at
+    least ``HEADING_DIVERSITY_MIN``, two strips or more)."""
+
+    attitude: StripMeans
+    position: StripMeans
+    heading_diversity: float
+    with_tilt: bool
+    attitude_fit: OffsetFit
+    position_fit: OffsetFit
+    attitude_jackknife: np.ndarray | None
+    position_jackknife: np.ndarray | None
+
+
+def _fit_strips(residuals: PhotoResiduals, strips: Strips) -> StripFits:
+    """Average the residuals per strip and fit the boresight [rad, camera] and lever-arm [m, body] offsets."""
+    attitude = _strip_means(residuals.rho, residuals.C_n_c, residuals.att_var_c, strips)
+    position = _strip_means(residuals.p, residuals.C_n_b, residuals.pos_var_b, strips)
+    diversity = heading_diversity(attitude.columns)
+    with_tilt = diversity >= HEADING_DIVERSITY_MIN and strips.count >= 2
+    return StripFits(attitude=attitude, position=position, heading_diversity=diversity, with_tilt=with_tilt,
+                     attitude_fit=fit_offset(attitude, with_tilt), position_fit=fit_offset(position, with_tilt),
+                     attitude_jackknife=jackknife(attitude, with_tilt),
+                     position_jackknife=jackknife(position, with_tilt))
+
+
+@dataclass(frozen=True)
+class AttitudeFloor:
+    """INS attitude errors no number of photos averages out, added to the boresight's covariance.
+
+    ``cov_c`` (3, 3) their covariance [rad^2, camera frame]; ``yaw_var`` the flight-constant yaw variance [rad^2];
+    ``body_tilt_deg`` (2) the body-fixed tilt sigma about body x and y [deg]; ``accel_sigma`` the filter's
+    accelerometer-bias sigma [m/s^2, body x, y, z] it came from, None when it is the conservative bound."""
+
+    cov_c: np.ndarray
+    yaw_var: float
+    body_tilt_deg: np.ndarray
+    accel_sigma: np.ndarray | None
+
+
+def _attitude_floor(residuals: PhotoResiduals, strips: Strips, fits: StripFits, accel_sigma: np.ndarray | None,
+                    gravity_m_s2: float) -> AttitudeFloor:
+    """The flight-constant attitude errors (docs/boresight.md, "sigma"); ``accel_sigma`` [m/s^2, body] from the
+    process summary or None, ``gravity_m_s2`` the normal gravity at the photos [m/s^2].
+
+    * the flight-constant yaw error adds onto b_z (and leaks into b_x, b_y through the camera's tilt): its
+      variance is at most the EO's median yaw variance (the variance of a mean is at most the mean variance); the
+      strips' yaw scatter tau_D is already in the GLS covariance, adding it again would count it twice;
+    * a tilt error fixed in the *body* frame (the filter's accelerometer-bias error over g) adds onto b_x, b_y on
+      every heading. With the process summary its variance is the filter's bias variance over g^2; without, the
+      EO's tilt variance the between-strip scatter does not account for is a bound (it also holds the NED tilt,
+      which the headings separate: pessimistic); with one heading the NED-constant tilt is not separated either."""
+    used = strips.index >= 0
+    eo_att_var = np.median(residuals.att_var_n[used], axis=0)
+    tau2 = fits.attitude_fit.between_sigma**2
+    yaw_var = float(eo_att_var[YAW])
+    mean_C_n_c = residuals.C_n_c[used].mean(axis=0)
+    if fits.with_tilt:
+        floor_c = np.outer(mean_C_n_c[:, DOWN], mean_C_n_c[:, DOWN]) * yaw_var
+    else:
+        floor_c = mean_C_n_c @ np.diag([eo_att_var[ROLL], eo_att_var[PITCH], yaw_var]) @ mean_C_n_c.T
+    C_c_b = residuals.C_c_b
+    if accel_sigma is not None:
+        body_tilt_c = accel_bias_tilt_covariance_camera(accel_sigma, gravity_m_s2, C_c_b)
+        body_tilt_deg = np.degrees([accel_sigma[BODY_Y], accel_sigma[BODY_X]] / np.float64(gravity_m_s2))
+    else:
+        level_var = float(np.mean(eo_att_var[LEVEL])) - (float(np.mean(tau2[HORIZONTAL])) if fits.with_tilt else 0.0)
+        level_var = max(0.0, level_var)
+        body_tilt_c = C_c_b.T @ np.diag([level_var, level_var, 0.0]) @ C_c_b
+        body_tilt_deg = np.degrees(np.sqrt([level_var, level_var]))
+    return AttitudeFloor(cov_c=floor_c + body_tilt_c, yaw_var=yaw_var, body_tilt_deg=body_tilt_deg,
+                         accel_sigma=accel_sigma)
+
+
+def _boresight_components(boresight_rad: np.ndarray, fits: StripFits, floor: AttitudeFloor) -> list[Component]:
+    """Roll, pitch, yaw corrections of the configured boresight ``boresight_rad`` [rad] and their sigmas [deg]:
+    the camera-frame offset [rad] mapped to the angles by the Jacobian at the corrected boresight."""
+    fit_att, jk_att = fits.attitude_fit, fits.attitude_jackknife
+    cov_b = fit_att.cov + floor.cov_c
+    new_angles = corrected_boresight(boresight_rad, fit_att.offset)
+    J = boresight_angle_jacobian(new_angles)
+    correction_deg = np.degrees(wrap_pi(new_angles - boresight_rad))
+    sigma_deg = np.degrees(np.sqrt(np.diag(J @ cov_b @ J.T)))
+    model_deg = np.degrees(np.sqrt(np.diag(J @ fit_att.cov @ J.T)))
+    jk_deg = None if jk_att is None else np.degrees(np.sqrt(np.diag(J @ np.diag(jk_att**2) @ J.T)))
+    boresight = [Component(name, "deg", float(np.degrees(boresight_rad[k])), float(correction_deg[k]),
+                           float(sigma_deg[k]), float(model_deg[k]), None if jk_deg is None else float(jk_deg[k]),
+                           True, "") for k, name in enumerate(("roll", "pitch", "yaw"))]
+    _explain_boresight_sigma(boresight, floor, fits.with_tilt)
+    return boresight
+
+
+def _explain_boresight_sigma(boresight: list[Component], floor: AttitudeFloor, with_tilt: bool) -> None:
+    """Say in each component's ``why`` which flight-constant INS error its sigma includes."""
+    boresight[YAW].why = (f"includes the INS's flight-constant yaw error ({np.degrees(np.sqrt(floor.yaw_var)):.3f} "
+                          "deg: the EO's median yaw sigma, which bounds it): it adds straight onto the boresight yaw")
+    accel_sigma = floor.accel_sigma
+    for k in (ROLL, PITCH):
+        c = boresight[k]
+        if accel_sigma is not None:
+            c.why = (f"includes a body-fixed INS tilt of {floor.body_tilt_deg[k]:.4f} deg about body {'xy'[k]} (the "
+                     f"filter's accelerometer-bias sigma {accel_sigma[1 - k]:.2g} m/s^2 along body {'yx'[k]} over g, "
+                     "from the process summary): it adds onto roll and pitch on every heading")
+        else:
+            c.why = (f"CONSERVATIVE: includes a body-fixed INS tilt bound of {floor.body_tilt_deg[k]:.4f} deg (the "
+                     "EO's tilt sigma not explained by the strips' scatter); pass --process-summary summary.json "
+                     "(georef process --summary-json) to use the filter's accelerometer-bias sigma instead")
+        if not with_tilt:
+            c.why = ("all strips on one heading: the INS's flight-constant tilt is not separated; its sigma (the EO's "
+                     "median tilt sigma) is included, " + c.why)
+
+
+@dataclass(frozen=True)
+class BodyShift:
+    """A body-fixed position error in the lever-arm y sigma: its ``variance`` [m^2] and ``what`` bounds it."""
+
+    variance: float
+    what: str
+
+
+def _body_shift(photos: MatchedPhotos, strips: Strips, fit_pos: OffsetFit, process: ProcessFigures | None
+                ) -> BodyShift:
+    """A position error fixed in the body frame (from the INS/GNSS solution) moves the camera like a lever arm on
+    every heading: the EO's horizontal position variance [m^2] the strips' scatter does not account for bounds it.
+    The filter knows one such error, its GNSS lever-arm estimate's (process summary; a configured GNSS lever arm
+    is the same on every flight processed with it, so the calibration absorbs its error); the bound is kept even
+    so: without it the simulated blocks' lever-y errors exceed the between-strip sigma (docs/boresight.md)."""
+    used = strips.index >= 0
+    pos_tau2 = fit_pos.between_sigma**2
+    eo_pos_var = np.median(photos.sigma_position[used] ** 2, axis=0)
+    variance = max(0.0, float(np.mean(eo_pos_var[HORIZONTAL]) - np.mean(pos_tau2[HORIZONTAL])))
+    what = f"{np.sqrt(variance):.3f} m the EO's sigmas allow"
+    gnss_lever = None if process is None else process.gnss_lever_arm_sigma_m
+    if gnss_lever is not None and gnss_lever[BODY_Y] ** 2 > variance:
+        variance = float(gnss_lever[BODY_Y] ** 2)
+        what = f"{gnss_lever[BODY_Y]:.3f} m, the filter's GNSS lever-arm y sigma (process summary)"
+    return BodyShift(variance=variance, what=what)
+
+
+def _lever_arm_components(lever: np.ndarray, fits: StripFits, shift: BodyShift, speeds: list[float]
+                          ) -> list[Component]:
+    """Corrections of the configured camera lever arm ``lever`` [m, body x, y, z] and their sigmas [m]; only y is
+    estimated (x goes with the trigger latency at the strips' ``speeds`` [m/s], z with a vertical datum shift)."""
+    fit_pos, jk_pos = fits.position_fit, fits.position_jackknife
+    lever_model = np.sqrt(np.diag(fit_pos.cov))
+    lever_sigma = np.sqrt(lever_model**2 + shift.variance)
+    lever_arm = [Component(name, "m", float(lever[k]), float(fit_pos.offset[k]), float(lever_sigma[k]),
+                           float(lever_model[k]), None if jk_pos is None else float(jk_pos[k]), True)
+                 for k, name in enumerate(("x", "y", "z"))]
+    x, y, z = lever_arm[BODY_X], lever_arm[BODY_Y], lever_arm[BODY_Z]
+    x.estimated = x.observed = False
+    x.why = (f"combined with the trigger latency: both move the camera along track (dx = lever x + v dt, "
+             f"v = {min(speeds, default=0):.1f}-{max(speeds, default=0):.1f} m/s); the value is lever x + "
+             "v dt, not applied")
+    z.estimated = z.observed = False
+    z.why = ("combined with a vertical datum shift (heights of the block vs the EO's): both move the "
+             "camera along body z on every heading; not applied")
+    if not fits.with_tilt:
+        y.estimated = y.observed = False
+        y.why = ("combined with a horizontal datum shift: separable only with strips flown in opposite headings; not "
+                 "applied")
+    elif abs(y.value) <= SIGNIFICANT * y.sigma:
+        y.estimated = False
+        y.why = (f"not significant (|{y.value:+.3f}| <= {SIGNIFICANT:g} x {y.sigma:.3f} m; body-fixed position "
+                 f"error in the sigma: {shift.what}): configured value kept")
+    else:
+        y.why = f"body-fixed position error in the sigma: {shift.what}"
+    return lever_arm
+
+
+@dataclass(frozen=True)
+class Findings:
+    """What weakens the calibration (``problems``: exit code 4) and what the user can do (``advice``)."""
+
+    problems: list[str]
+    advice: list[str]
+
+
+def _findings(strips: Strips, fits: StripFits, boresight: list[Component], lever_arm: list[Component],
+              process: ProcessFigures | None) -> Findings:
+    """The checks, in report order: sigma source, strip count, heading diversity, then :func:`_consistency`."""
+    problems: list[str] = []
+    advice: list[str] = []
+    if process is None or process.accel_bias_sigma_m_s2 is None:
+        why = ("the process summary has no accelerometer-bias sigma (method " + process.method + ")"
+               if process is not None else "no --process-summary")
+        advice.append(f"the roll and pitch sigmas are CONSERVATIVE ({why}): they bound the body-fixed INS tilt by "
+                      "the EO's tilt sigma, typically 2-3 x too large; process with --method rts or ekf and "
+                      "--summary-json summary.json, then pass --process-summary summary.json")
+    if strips.count < MIN_STRIPS_GOOD:
+        problems.append(f"only {strips.count} strip(s) of {MIN_STRIP_PHOTOS}+ straight photos: the between-strip "
+                        "variance is not measured (the sigma falls back to the EO's per-photo sigma)")
+        advice.append("adjust a block with at least 3 strips, in opposite headings, ideally with cross strips")
+    if not fits.with_tilt:
+        problems.append(f"strip headings do not separate the INS's tilt from the boresight (diversity "
+                        f"{fits.heading_diversity:.2f} < {HEADING_DIVERSITY_MIN})")
+        advice.append("include strips flown in the opposite heading and cross strips")
+    consistency = _consistency(strips, fits, boresight, lever_arm)
+    return Findings(problems=problems + consistency.problems, advice=advice + consistency.advice)
+
+
+def _consistency(strips: Strips, fits: StripFits, boresight: list[Component], lever_arm: list[Component]
+                 ) -> Findings:
+    """The strip residuals' chi-square against the EO's sigmas (level ``CHI2_LEVEL``), and estimated components
+    whose jackknife sigma exceeds ``JACKKNIFE_RATIO_MAX`` times the model's (five strips or more)."""
+    problems: list[str] = []
+    advice: list[str] = []
+    for label, fit in (("attitude", fits.attitude_fit), ("position", fits.position_fit)):
+        if fit.dof > 0:
+            limit = float(stats.chi2.ppf(CHI2_LEVEL, fit.dof))
+            if fit.chi2 > limit:
+                problems.append(f"{label} residuals of the strips are inconsistent with the EO's sigmas: chi-square "
+                                f"{fit.chi2:.1f} > {limit:.1f} ({fit.dof} dof)")
+                advice.append(f"check the {label} inputs: the same CRS (--crs) and heights for both tables, the "
+                              "image names' match, the configured mounting, and the block's own quality")
+    for items, what in ((boresight, "boresight"), ([lever_arm[BODY_Y]], "lever arm")):
+        for c in items:
+            if c.estimated and c.jackknife_sigma is not None and c.jackknife_sigma > JACKKNIFE_RATIO_MAX * max(
+                    c.model_sigma, 1e-12) and strips.count >= 5:
+                problems.append(f"{what} {c.name}: the jackknife over strips gives sigma {c.jackknife_sigma:.4g} "
+                                f"{c.unit}, {c.jackknife_sigma / c.model_sigma:.1f} x the model's {c.model_sigma:.4g}")
+                advice.append("strips disagree more than their scatter says: look for a strip with a bad "
+                              "adjustment or an INS problem (the strips table)")
+    return Findings(problems=problems, advice=advice)
+
+
+def _strip_rows(photos: MatchedPhotos, strips: Strips, fits: StripFits, speeds: list[float]) -> list[dict[str, Any]]:
+    """The strips table: photos, first and last label, mean heading [deg], ground speed [m/s], and the fit's
+    residuals of the strip mean (attitude [deg, camera frame], position [m, body frame])."""
+    strip_rows = []
+    for s in range(strips.count):
+        members = np.flatnonzero(strips.index == s)
+        strip_rows.append({"strip": s + 1, "photos": int(len(members)),
+                           "first": str(photos.label[members[0]]), "last": str(photos.label[members[-1]]),
+                           "heading_deg": float(np.degrees(np.angle(np.mean(np.exp(
+                               1j * np.radians(photos.heading_deg[members])))))) % 360.0,
+                           "speed_mps": float(speeds[s]) if speeds else None,
+                           "attitude_residual_deg": [float(v) for v in np.degrees(fits.attitude_fit.residuals[s])],
+                           "position_residual_m": [float(v) for v in fits.position_fit.residuals[s]]})
+    return strip_rows
+
+
 def calibrate(photos: MatchedPhotos, boresight_deg: Any, lever_arm_camera_m: Any, source: Any = "input",
               process: ProcessFigures | None = None) -> BoresightCalibration:
     """Estimate the boresight and camera lever-arm corrections from matched photos (module docstring).
@@ -451,190 +821,28 @@ def calibrate(photos: MatchedPhotos, boresight_deg: Any, lever_arm_camera_m: Any
     strip; a calibration from fewer than ``MIN_STRIPS_GOOD`` strips or failing a check has ``problems``."""
     boresight_rad = np.radians(np.asarray(boresight_deg, float))
     lever = np.asarray(lever_arm_camera_m, float)
-    if len(photos) < MIN_PHOTOS:
-        raise CalibrationInputError(source, None, None, f"{len(photos)} usable photos match (need at least "
-                                    f"{MIN_PHOTOS}; {photos.eo_rows_flagged} matched rows are flagged in the EO)")
-    if process is not None:
-        first, last = process.time_span_s
-        outside = int(np.count_nonzero((photos.time < first - SPAN_TOLERANCE_S)
-                                       | (photos.time > last + SPAN_TOLERANCE_S)))
-        if outside:
-            raise CalibrationInputError(process.path, None, "summary.time_span_s", f"{outside} of the {len(photos)} "
-                                        f"photos lie outside this run's POS time span {first:.1f}-{last:.1f} s: the "
-                                        "summary of another flight? Pass the --summary-json of the run that wrote "
-                                        "the EO table")
-    strips = split_strips(photos.time, photos.heading_deg, photos.roll_deg)
-    if strips.count == 0:
-        raise CalibrationInputError(source, None, None, f"no strip: none of the {len(photos)} matched photos form a "
-                                    f"straight run of {MIN_STRIP_PHOTOS} or more (heading steady within "
-                                    f"{STRIP_HEADING_TOL_DEG:g} deg, roll under {TURN_ROLL_DEG:g} deg)")
-    C_c_b = boresight_dcm(boresight_rad)
-    C_b_n = photos.C_c_n_eo @ C_c_b.T
-    rho = camera_rotation_residual(photos.C_c_n_eo, photos.C_c_n_adjusted)
-    C_n_c = np.swapaxes(photos.C_c_n_eo, -1, -2)
-    C_n_b = np.swapaxes(C_b_n, -1, -2)
-    p = body_offset(C_b_n, photos.d_ned)
-
-    # EO variances in the camera / body axes: the EO's roll, pitch, yaw sigmas taken as NED tilt sigmas
-    # (small roll and pitch), its N, E, U position sigmas as NED
-    att_var_n = photos.sigma_attitude**2
-    att_var_c = np.einsum("nij,nj->ni", C_n_c**2, att_var_n)
-    pos_var_b = np.einsum("nij,nj->ni", C_n_b**2, photos.sigma_position**2)
-
-    att = _strip_means(rho, C_n_c, att_var_c, strips)
-    pos = _strip_means(p, C_n_b, pos_var_b, strips)
-    diversity = heading_diversity(att[1])
-    with_tilt = diversity >= HEADING_DIVERSITY_MIN and strips.count >= 2
-    fit_att = fit_offset(*att, with_tilt)
-    fit_pos = fit_offset(*pos, with_tilt)
-    jk_att = jackknife(*att, with_tilt)
-    jk_pos = jackknife(*pos, with_tilt)
-
-    # INS attitude errors no number of photos averages out (docs/boresight.md, "sigma"):
-    # * the flight-constant yaw error adds onto b_z (and leaks into b_x, b_y through the camera's tilt): its
-    #   variance is at most the EO's median yaw variance (the variance of a mean is at most the mean variance); the
-    #   strips' yaw scatter tau_D is already in the GLS covariance, adding it again would count it twice;
-    # * a tilt error fixed in the *body* frame (the filter's accelerometer-bias error over g) adds onto b_x, b_y on
-    #   every heading. With the process summary its variance is the filter's bias variance over g^2; without, the
-    #   EO's tilt variance the between-strip scatter does not account for is a bound (it also holds the NED tilt,
-    #   which the headings separate: pessimistic); with one heading the NED-constant tilt is not separated either.
-    used = strips.index >= 0
-    eo_att_var = np.median(att_var_n[used], axis=0)
-    tau2 = fit_att.between_sigma**2
-    yaw_var = float(eo_att_var[2])
-    mean_C_n_c = C_n_c[used].mean(axis=0)
-    if with_tilt:
-        floor_c = np.outer(mean_C_n_c[:, 2], mean_C_n_c[:, 2]) * yaw_var
-    else:
-        floor_c = mean_C_n_c @ np.diag([*eo_att_var[:2], yaw_var]) @ mean_C_n_c.T
+    _check_photos(photos, source, process)
+    strips = _straight_strips(photos, source)
+    residuals = _photo_residuals(photos, boresight_rad)
+    fits = _fit_strips(residuals, strips)
     accel_sigma = None if process is None else process.accel_bias_sigma_m_s2
-    if accel_sigma is not None:
-        body_tilt_c = accel_bias_tilt_covariance_camera(accel_sigma, photos.gravity_m_s2, C_c_b)
-        body_tilt_deg = np.degrees([accel_sigma[1], accel_sigma[0]] / np.float64(photos.gravity_m_s2))
-    else:
-        level_var = float(np.mean(eo_att_var[:2])) - (float(np.mean(tau2[:2])) if with_tilt else 0.0)
-        level_var = max(0.0, level_var)
-        body_tilt_c = C_c_b.T @ np.diag([level_var, level_var, 0.0]) @ C_c_b
-        body_tilt_deg = np.degrees(np.sqrt([level_var, level_var]))
-    floor_c = floor_c + body_tilt_c
-    cov_b = fit_att.cov + floor_c
-    J = boresight_angle_jacobian(corrected_boresight(boresight_rad, fit_att.offset))
-    new_angles = corrected_boresight(boresight_rad, fit_att.offset)
-    correction_deg = np.degrees(wrap_pi(new_angles - boresight_rad))
-    sigma_deg = np.degrees(np.sqrt(np.diag(J @ cov_b @ J.T)))
-    model_deg = np.degrees(np.sqrt(np.diag(J @ fit_att.cov @ J.T)))
-    jk_deg = None if jk_att is None else np.degrees(np.sqrt(np.diag(J @ np.diag(jk_att**2) @ J.T)))
-    boresight = [Component(name, "deg", float(np.degrees(boresight_rad[k])), float(correction_deg[k]),
-                           float(sigma_deg[k]), float(model_deg[k]), None if jk_deg is None else float(jk_deg[k]),
-                           True, "") for k, name in enumerate(("roll", "pitch", "yaw"))]
-    boresight[2].why = (f"includes the INS's flight-constant yaw error ({np.degrees(np.sqrt(yaw_var)):.3f} deg: the "
-                        "EO's median yaw sigma, which bounds it): it adds straight onto the boresight yaw")
-    for k, c in enumerate(boresight[:2]):
-        if accel_sigma is not None:
-            c.why = (f"includes a body-fixed INS tilt of {body_tilt_deg[k]:.4f} deg about body {'xy'[k]} (the "
-                     f"filter's accelerometer-bias sigma {accel_sigma[1 - k]:.2g} m/s^2 along body {'yx'[k]} over g, "
-                     "from the process summary): it adds onto roll and pitch on every heading")
-        else:
-            c.why = (f"CONSERVATIVE: includes a body-fixed INS tilt bound of {body_tilt_deg[k]:.4f} deg (the EO's tilt "
-                     "sigma not explained by the strips' scatter); pass --process-summary summary.json (georef "
-                     "process --summary-json) to use the filter's accelerometer-bias sigma instead")
-    if not with_tilt:
-        for c in boresight[:2]:
-            c.why = ("all strips on one heading: the INS's flight-constant tilt is not separated; its sigma (the EO's "
-                     "median tilt sigma) is included, " + c.why)
-
+    floor = _attitude_floor(residuals, strips, fits, accel_sigma, photos.gravity_m_s2)
+    boresight = _boresight_components(boresight_rad, fits, floor)
     speeds = _strip_speeds(photos, strips)
-    # a position error fixed in the body frame (from the INS/GNSS solution) moves the camera like a lever arm on
-    # every heading: the EO's horizontal position variance the strips' scatter does not account for bounds it. The
-    # filter knows one such error, its GNSS lever-arm estimate's (process summary; a configured GNSS lever arm is
-    # the same on every flight processed with it, so the calibration absorbs its error); the bound is kept even so:
-    # without it the simulated blocks' lever-y errors exceed the between-strip sigma (docs/boresight.md)
-    pos_tau2 = fit_pos.between_sigma**2
-    eo_pos_var = np.median(photos.sigma_position[used] ** 2, axis=0)
-    body_shift_var = max(0.0, float(np.mean(eo_pos_var[:2]) - np.mean(pos_tau2[:2])))
-    body_shift_what = f"{np.sqrt(body_shift_var):.3f} m the EO's sigmas allow"
-    gnss_lever = None if process is None else process.gnss_lever_arm_sigma_m
-    if gnss_lever is not None and gnss_lever[1] ** 2 > body_shift_var:
-        body_shift_var = float(gnss_lever[1] ** 2)
-        body_shift_what = f"{gnss_lever[1]:.3f} m, the filter's GNSS lever-arm y sigma (process summary)"
-    lever_model = np.sqrt(np.diag(fit_pos.cov))
-    lever_sigma = np.sqrt(lever_model**2 + body_shift_var)
-    lever_arm = []
-    for k, name in enumerate(("x", "y", "z")):
-        jk = None if jk_pos is None else float(jk_pos[k])
-        lever_arm.append(Component(name, "m", float(lever[k]), float(fit_pos.offset[k]), float(lever_sigma[k]),
-                                   float(lever_model[k]), jk, True))
-    lever_arm[0].estimated = lever_arm[0].observed = False
-    lever_arm[0].why = (f"combined with the trigger latency: both move the camera along track (dx = lever x + v dt, "
-                        f"v = {min(speeds, default=0):.1f}-{max(speeds, default=0):.1f} m/s); the value is lever x + "
-                        "v dt, not applied")
-    lever_arm[2].estimated = lever_arm[2].observed = False
-    lever_arm[2].why = ("combined with a vertical datum shift (heights of the block vs the EO's): both move the "
-                        "camera along body z on every heading; not applied")
-    y = lever_arm[1]
-    if not with_tilt:
-        y.estimated = y.observed = False
-        y.why = ("combined with a horizontal datum shift: separable only with strips flown in opposite headings; not "
-                 "applied")
-    elif abs(y.value) <= SIGNIFICANT * y.sigma:
-        y.estimated = False
-        y.why = (f"not significant (|{y.value:+.3f}| <= {SIGNIFICANT:g} x {y.sigma:.3f} m; body-fixed position "
-                 f"error in the sigma: {body_shift_what}): configured value kept")
-    else:
-        y.why = f"body-fixed position error in the sigma: {body_shift_what}"
-
-    problems: list[str] = []
-    advice: list[str] = []
-    if accel_sigma is None:
-        why = ("the process summary has no accelerometer-bias sigma (method " + process.method + ")"
-               if process is not None else "no --process-summary")
-        advice.append(f"the roll and pitch sigmas are CONSERVATIVE ({why}): they bound the body-fixed INS tilt by "
-                      "the EO's tilt sigma, typically 2-3 x too large; process with --method rts or ekf and "
-                      "--summary-json summary.json, then pass --process-summary summary.json")
-    if strips.count < MIN_STRIPS_GOOD:
-        problems.append(f"only {strips.count} strip(s) of {MIN_STRIP_PHOTOS}+ straight photos: the between-strip "
-                        "variance is not measured (the sigma falls back to the EO's per-photo sigma)")
-        advice.append("adjust a block with at least 3 strips, in opposite headings, ideally with cross strips")
-    if not with_tilt:
-        problems.append(f"strip headings do not separate the INS's tilt from the boresight (diversity "
-                        f"{diversity:.2f} < {HEADING_DIVERSITY_MIN})")
-        advice.append("include strips flown in the opposite heading and cross strips")
-    for label, fit in (("attitude", fit_att), ("position", fit_pos)):
-        if fit.dof > 0:
-            limit = float(stats.chi2.ppf(CHI2_LEVEL, fit.dof))
-            if fit.chi2 > limit:
-                problems.append(f"{label} residuals of the strips are inconsistent with the EO's sigmas: chi-square "
-                                f"{fit.chi2:.1f} > {limit:.1f} ({fit.dof} dof)")
-                advice.append(f"check the {label} inputs: the same CRS (--crs) and heights for both tables, the "
-                              "image names' match, the configured mounting, and the block's own quality")
-    for items, what in ((boresight, "boresight"), (lever_arm[1:2], "lever arm")):
-        for c in items:
-            if c.estimated and c.jackknife_sigma is not None and c.jackknife_sigma > JACKKNIFE_RATIO_MAX * max(
-                    c.model_sigma, 1e-12) and strips.count >= 5:
-                problems.append(f"{what} {c.name}: the jackknife over strips gives sigma {c.jackknife_sigma:.4g} "
-                                f"{c.unit}, {c.jackknife_sigma / c.model_sigma:.1f} x the model's {c.model_sigma:.4g}")
-                advice.append("strips disagree more than their scatter says: look for a strip with a bad "
-                              "adjustment or an INS problem (the strips table)")
-    strip_rows = []
-    for s in range(strips.count):
-        members = np.flatnonzero(strips.index == s)
-        strip_rows.append({"strip": s + 1, "photos": int(len(members)),
-                           "first": str(photos.label[members[0]]), "last": str(photos.label[members[-1]]),
-                           "heading_deg": float(np.degrees(np.angle(np.mean(np.exp(
-                               1j * np.radians(photos.heading_deg[members])))))) % 360.0,
-                           "speed_mps": float(speeds[s]) if speeds else None,
-                           "attitude_residual_deg": [float(v) for v in np.degrees(fit_att.residuals[s])],
-                           "position_residual_m": [float(v) for v in fit_pos.residuals[s]]})
+    lever_arm = _lever_arm_components(lever, fits, _body_shift(photos, strips, fits.position_fit, process), speeds)
+    findings = _findings(strips, fits, boresight, lever_arm, process)
+    fit_att, fit_pos = fits.attitude_fit, fits.position_fit
     return BoresightCalibration(
         boresight=boresight, lever_arm=lever_arm, photos_matched=len(photos),
-        photos_used=int(np.count_nonzero(used)), photos_in_turns=strips.in_turns, strips=strip_rows,
-        tilt_estimated=with_tilt, heading_diversity=diversity,
+        photos_used=int(np.count_nonzero(strips.index >= 0)), photos_in_turns=strips.in_turns,
+        strips=_strip_rows(photos, strips, fits, speeds), tilt_estimated=fits.with_tilt,
+        heading_diversity=fits.heading_diversity,
         ins_tilt_deg=None if fit_att.tilt is None else [float(v) for v in np.degrees(fit_att.tilt)],
         between_strip_attitude_deg=[float(v) for v in np.degrees(fit_att.between_sigma)],
         between_strip_position_m=[float(v) for v in fit_pos.between_sigma],
         chi2_attitude=fit_att.chi2, chi2_position=fit_pos.chi2, dof_attitude=fit_att.dof, dof_position=fit_pos.dof,
         unmatched_labels=photos.unmatched_labels, eo_rows_flagged=photos.eo_rows_flagged,
-        eo_rows_without_camera=photos.eo_rows_without_camera, problems=problems, advice=advice,
+        eo_rows_without_camera=photos.eo_rows_without_camera, problems=findings.problems, advice=findings.advice,
         sigma_source=SIGMA_CONSERVATIVE if accel_sigma is None else SIGMA_FROM_FILTER)
 
 

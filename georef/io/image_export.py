@@ -36,7 +36,7 @@ import numpy as np
 
 from georef.eo import FLAG_DUPLICATE, FLAG_NO_SIGMA, FLAG_ORDER
 from georef.frames.heights import EGM96_HEIGHT
-from georef.frames.pix4d import per_axis_sigma, pix4d_angles
+from georef.frames.pix4d import Pix4dAngles, per_axis_sigma, pix4d_angles
 from georef.io.atomic import atomic_write
 from georef.io.errors import GeorefError, InputError
 from georef.io.image_match import ClockMatch, ClockMatchError, match_capture_times, offset_from_pairs
@@ -249,8 +249,18 @@ def _untagged_reason(flag: str, values: list[float]) -> str | None:
     return None
 
 
+@dataclass(frozen=True)
+class _PhotoMatch:
+    """Per photo of ``SRC`` (in :func:`source_photos` order) the EO row it is matched to (-1: none) and the reason
+    when none; the camera clock (``None`` without capture times)."""
+
+    rows: np.ndarray
+    reasons: list[str]
+    clock: ClockMatch | None
+
+
 def _match(photos: list[SourceImage], columns: EoColumns, fixed_offset_s: float | None,
-           by_name: bool) -> tuple[np.ndarray, list[str], ClockMatch | None]:
+           by_name: bool) -> _PhotoMatch:
     """Per photo the EO row (-1: none) and the reason when none, and the clock (when capture times exist)."""
     n = len(photos)
     rows = np.full(n, -1)
@@ -272,7 +282,7 @@ def _match(photos: list[SourceImage], columns: EoColumns, fixed_offset_s: float 
         if paired:
             pick = np.array([timed.index(i) for i in paired])
             clock = offset_from_pairs(posix[pick], resolution[pick], times[rows[paired]])
-        return rows, reasons, clock
+        return _PhotoMatch(rows, reasons, clock)
     if not timed:
         raise ClockMatchError(f"{photos[0].path.parent}: no photo has a capture time (EXIF DateTimeOriginal) to "
                               "match it to its frame", "Name the photos with --image-names")
@@ -285,7 +295,122 @@ def _match(photos: list[SourceImage], columns: EoColumns, fixed_offset_s: float 
     for i, photo in enumerate(photos):
         if photo.capture is None:
             reasons[i] = f"{photo.capture_problem}: cannot be matched by capture time"
-    return rows, reasons, clock
+    return _PhotoMatch(rows, reasons, clock)
+
+
+@dataclass(frozen=True)
+class _FlightDay:
+    """The flight's UTC day as settled between the log (or ``--utc-date``) and the photos: the camera clock (its
+    offset [s] moved by whole days when the photos' day and the log's differ by a time zone; ``None`` without
+    capture times), 00:00 UTC of the day [POSIX s] (``None``: unknown, no ``GPSDateStamp``) and what gave it."""
+
+    clock: ClockMatch | None
+    day_start_posix: float | None
+    date_source: str | None
+
+
+@dataclass(frozen=True)
+class _FrameTags:
+    """What the EO table gives each frame's copy: WGS 84 latitude, longitude [deg], altitude above EGM96 [m] (NaN
+    without a position), horizontal 1-sigma per axis [m], Pix4D's yaw, pitch, roll [deg] and the frame's flags."""
+
+    lat: np.ndarray
+    lon: np.ndarray
+    altitude: np.ndarray
+    xy_sigma: np.ndarray
+    angles: Pix4dAngles
+    flags: np.ndarray
+
+
+def _refuse_unnamed(photos: list[SourceImage], columns: EoColumns, source_dir: Path) -> None:
+    """Refuse a match by name that gave no photo a frame (a wrong pattern or CSV), naming names that differ only
+    in case."""
+    present = [photo.path.name for photo in photos]
+    named = [str(name) for name in np.asarray(columns["image"], dtype=object)]
+    folded = {name.lower() for name in named}
+    what = "(the EO table's image column) or flight.toml's image_names"
+    raise ImageExportError(_no_photo_named(Path(source_dir), what, named, present,
+                                           [name for name in present if name.lower() in folded]))
+
+
+def _flight_day(photos: list[SourceImage], clock: ClockMatch | None, day_start_posix: float | None,
+                date_source: str | None) -> _FlightDay:
+    """The flight's day: the given one (checked against the photos' capture times, and the camera clock's
+    offset counted from it), else the photos' own, else unknown."""
+    if day_start_posix is None and clock is not None:
+        return _FlightDay(clock, clock.day_start_posix, "the photos' capture times (camera clock within 12 h of UTC)")
+    if day_start_posix is not None and clock is not None:
+        _check_day(photos, clock, day_start_posix, date_source or "the flight's date")
+        if not clock.fixed:
+            # the photos' day and the log's agree but for the camera's time zone: the offset from the known day
+            shift = clock.day_start_posix - day_start_posix
+            clock = replace(clock, offset_s=clock.offset_s + shift, day_start_posix=day_start_posix)
+    return _FlightDay(clock, day_start_posix, date_source)
+
+
+def _frames_without_photo(photos: list[SourceImage], columns: EoColumns, rows: np.ndarray, by_name: bool
+                          ) -> list[str]:
+    """The frames no photo was matched to: by name, those whose named photo is not in the folder; by capture
+    time, those with a time that no photo claimed."""
+    if by_name:
+        present = {p.path.name for p in photos}
+        return [str(f) for f, name in zip(columns["frame"], columns["image"], strict=True) if str(name) not in present]
+    claimed = set(rows[rows >= 0].tolist())
+    return [str(columns["frame"][j]) for j in range(len(columns["time"]))
+            if j not in claimed and np.isfinite(columns["time"][j])]
+
+
+def _frame_tags(columns: EoColumns, frames: OutputFrames | None) -> _FrameTags:
+    """The tags of every frame of the EO table, altitudes converted to EGM96 with ``frames`` where there is a
+    position."""
+    from georef.frames.heights import OutputFrames
+
+    lat, lon, h = (np.asarray(columns[name], float) for name in ("lat", "lon", "height"))
+    ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(h)
+    altitude = np.full(len(lat), np.nan)
+    if ok.any():
+        altitude[ok] = (frames or OutputFrames()).egm96(lat[ok], lon[ok], h[ok])
+    return _FrameTags(lat=lat, lon=lon, altitude=altitude, xy_sigma=per_axis_sigma(columns["sigma_n"],
+                      columns["sigma_e"]), angles=pix4d_angles(columns["roll"], columns["pitch"], columns["yaw"]),
+                      flags=np.asarray(columns["flag"], dtype=object))
+
+
+def _capture_residuals(photos: list[SourceImage], clock: ClockMatch | None, rows: np.ndarray, by_name: bool
+                       ) -> np.ndarray:
+    """Per photo its capture time's residual after the camera clock offset [s] (NaN without a capture time, or
+    by name without a frame)."""
+    residual = np.full(len(photos), np.nan)
+    if clock is not None:
+        timed = [i for i, p in enumerate(photos) if p.capture is not None and (not by_name or rows[i] >= 0)]
+        residual[timed] = clock.residual_s[: len(timed)]
+    return residual
+
+
+def _copy_photo(photo: SourceImage, j: int, residual_s: float, columns: EoColumns, tags: _FrameTags,
+                day_start_posix: float | None, target_dir: Path) -> ImageRow:
+    """The photo's row for EO row ``j``: a tagged copy written into ``target_dir`` (atomically), or none when the
+    frame's flag or missing values put its position or time in doubt (:func:`_untagged_reason`)."""
+    frame, flag, time_s = str(columns["frame"][j]), str(tags.flags[j] or ""), float(columns["time"][j])
+    values = [tags.lat[j], tags.lon[j], tags.altitude[j], tags.xy_sigma[j], columns["sigma_u"][j], columns["roll"][j],
+              columns["pitch"][j], columns["yaw"][j], columns["sigma_roll"][j], columns["sigma_pitch"][j],
+              columns["sigma_yaw"][j]]
+    why = _untagged_reason(flag, values)
+    if why is not None:
+        return ImageRow(photo.path.name, frame, NOT_TAGGED, why, "", time_s, residual_s)
+    angles = tags.angles
+    tag = Geotag(lat=float(tags.lat[j]), lon=float(tags.lon[j]), altitude_m=float(tags.altitude[j]),
+                 utc_posix=None if day_start_posix is None else day_start_posix + time_s,
+                 utc_seconds_of_day=time_s,
+                 angles=type(angles)(angles.yaw[j], angles.pitch[j], angles.roll[j]),
+                 xy_accuracy_m=float(tags.xy_sigma[j]), z_accuracy_m=float(columns["sigma_u"][j]),
+                 yaw_accuracy_deg=float(columns["sigma_yaw"][j]),
+                 pitch_accuracy_deg=float(columns["sigma_pitch"][j]),
+                 roll_accuracy_deg=float(columns["sigma_roll"][j]))
+    copy = Path(target_dir) / photo.path.name
+    data = tagged_copy(photo.path.read_bytes(), tag, photo.make, photo.path)
+    with atomic_write(copy, "wb") as handle:
+        handle.write(data)
+    return ImageRow(photo.path.name, frame, TAGGED_FLAGGED if flag else TAGGED, flag, str(copy), time_s, residual_s)
 
 
 def export_images(columns: EoColumns, source_dir: Path, target_dir: Path, frames: OutputFrames | None = None,
@@ -296,78 +421,24 @@ def export_images(columns: EoColumns, source_dir: Path, target_dir: Path, frames
     ``day_start_posix``: 00:00 UTC [POSIX s] of the EO table's day when the log or ``--utc-date`` gives it
     (``date_source`` says which); otherwise the photos' capture times give it, or no ``GPSDateStamp`` is written.
     Raises :class:`~georef.io.image_match.ClockMatchError` for an ambiguous capture-time match."""
-    from georef.frames.heights import OutputFrames
-
     photos = [read_source(path) for path in source_photos(source_dir)]
     by_name = "image" in columns
-    rows, reasons, clock = _match(photos, columns, fixed_offset_s, by_name)
-    if by_name and not (rows >= 0).any():
-        present = [photo.path.name for photo in photos]
-        named = [str(name) for name in np.asarray(columns["image"], dtype=object)]
-        folded = {name.lower() for name in named}
-        what = "(the EO table's image column) or flight.toml's image_names"
-        raise ImageExportError(_no_photo_named(Path(source_dir), what, named, present,
-                                               [name for name in present if name.lower() in folded]))
-    result = ImageExport(Path(source_dir), Path(target_dir), BY_NAME if by_name else BY_CAPTURE_TIME, clock=clock)
-    if day_start_posix is None and clock is not None:
-        day_start_posix = clock.day_start_posix
-        date_source = "the photos' capture times (camera clock within 12 h of UTC)"
-    elif day_start_posix is not None and clock is not None:
-        _check_day(photos, clock, day_start_posix, date_source or "the flight's date")
-        if not clock.fixed:
-            # the photos' day and the log's agree but for the camera's time zone: the offset from the known day
-            shift = clock.day_start_posix - day_start_posix
-            clock = replace(clock, offset_s=clock.offset_s + shift, day_start_posix=day_start_posix)
-            result.clock = clock
-    result.date_source = date_source
-    if by_name:
-        present = {p.path.name for p in photos}
-        result.frames_without_photo = [str(f) for f, name in zip(columns["frame"], columns["image"], strict=True)
-                                       if str(name) not in present]
-    else:
-        claimed = set(rows[rows >= 0].tolist())
-        result.frames_without_photo = [str(columns["frame"][j]) for j in range(len(columns["time"]))
-                                       if j not in claimed and np.isfinite(columns["time"][j])]
-    lat, lon, h = (np.asarray(columns[name], float) for name in ("lat", "lon", "height"))
-    ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(h)
-    altitude = np.full(len(lat), np.nan)
-    if ok.any():
-        altitude[ok] = (frames or OutputFrames()).egm96(lat[ok], lon[ok], h[ok])
-    xy = per_axis_sigma(columns["sigma_n"], columns["sigma_e"])
-    angles = pix4d_angles(columns["roll"], columns["pitch"], columns["yaw"])
-    flags = np.asarray(columns["flag"], dtype=object)
-    residual = np.full(len(photos), np.nan)
-    if clock is not None:
-        timed = [i for i, p in enumerate(photos) if p.capture is not None and (not by_name or rows[i] >= 0)]
-        residual[timed] = clock.residual_s[: len(timed)]
+    match = _match(photos, columns, fixed_offset_s, by_name)
+    if by_name and not (match.rows >= 0).any():
+        _refuse_unnamed(photos, columns, source_dir)
+    day = _flight_day(photos, match.clock, day_start_posix, date_source)
+    result = ImageExport(Path(source_dir), Path(target_dir), BY_NAME if by_name else BY_CAPTURE_TIME, clock=day.clock,
+                         date_source=day.date_source,
+                         frames_without_photo=_frames_without_photo(photos, columns, match.rows, by_name))
+    tags = _frame_tags(columns, frames)
+    residual = _capture_residuals(photos, day.clock, match.rows, by_name)
     Path(target_dir).mkdir(parents=True, exist_ok=True)
     for i, photo in enumerate(photos):
-        j = int(rows[i])
+        j = int(match.rows[i])
         if j < 0:
-            result.rows.append(ImageRow(photo.path.name, "", NOT_TAGGED, reasons[i], "", np.nan, residual[i]))
+            result.rows.append(ImageRow(photo.path.name, "", NOT_TAGGED, match.reasons[i], "", np.nan, residual[i]))
             continue
-        frame, flag, time_s = str(columns["frame"][j]), str(flags[j] or ""), float(columns["time"][j])
-        values = [lat[j], lon[j], altitude[j], xy[j], columns["sigma_u"][j], columns["roll"][j],
-                  columns["pitch"][j], columns["yaw"][j], columns["sigma_roll"][j], columns["sigma_pitch"][j],
-                  columns["sigma_yaw"][j]]
-        why = _untagged_reason(flag, values)
-        if why is not None:
-            result.rows.append(ImageRow(photo.path.name, frame, NOT_TAGGED, why, "", time_s, residual[i]))
-            continue
-        tag = Geotag(lat=float(lat[j]), lon=float(lon[j]), altitude_m=float(altitude[j]),
-                     utc_posix=None if day_start_posix is None else day_start_posix + time_s,
-                     utc_seconds_of_day=time_s,
-                     angles=type(angles)(angles.yaw[j], angles.pitch[j], angles.roll[j]),
-                     xy_accuracy_m=float(xy[j]), z_accuracy_m=float(columns["sigma_u"][j]),
-                     yaw_accuracy_deg=float(columns["sigma_yaw"][j]),
-                     pitch_accuracy_deg=float(columns["sigma_pitch"][j]),
-                     roll_accuracy_deg=float(columns["sigma_roll"][j]))
-        copy = Path(target_dir) / photo.path.name
-        data = tagged_copy(photo.path.read_bytes(), tag, photo.make, photo.path)
-        with atomic_write(copy, "wb") as handle:
-            handle.write(data)
-        result.rows.append(ImageRow(photo.path.name, frame, TAGGED_FLAGGED if flag else TAGGED, flag, str(copy),
-                                    time_s, residual[i]))
+        result.rows.append(_copy_photo(photo, j, residual[i], columns, tags, day.day_start_posix, Path(target_dir)))
     _write_report(result)
     return result
 

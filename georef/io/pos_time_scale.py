@@ -159,6 +159,98 @@ def _overlaps(times: np.ndarray, imu_start: float, imu_end: float) -> bool:
     return bool(np.any((times >= imu_start) & (times <= imu_end)))
 
 
+@dataclass(frozen=True)
+class _Placement:
+    """Solution-file times on one scale: ``scale`` (a key of :data:`SCALES`), ``reference_utc`` [POSIX s] a time
+    in the day or GPS week they count from, ``times`` [s] on that scale."""
+
+    scale: str
+    reference_utc: float
+    times: np.ndarray
+
+
+@dataclass(frozen=True)
+class _ScaleRequest:
+    """What :func:`choose_time_scale` places: the file ``path``'s UTC times ``utc`` [POSIX s] (``what`` they are,
+    in words), the IMU's span ``imu_start`` - ``imu_end`` [s] (``imu_label`` names its source), ``requested``
+    (a key of :data:`SCALES` or :data:`AUTO`) and ``asked`` (how it was asked, for the messages)."""
+
+    path: Path | str
+    utc: np.ndarray
+    what: str
+    imu_label: str
+    imu_start: float
+    imu_end: float
+    requested: str
+    asked: str
+
+    def placed(self, scale: str, shift: int) -> _Placement:
+        """The times on ``scale`` counted from the day (GPS week) ``shift`` periods after the first time's."""
+        reference = float(self.utc[0]) + shift * (_PERIOD[scale] or 0.0)
+        return _Placement(scale, reference, solution_times(self.utc, SCALES[scale], reference))
+
+    def overlaps(self, times: np.ndarray) -> bool:
+        """Whether one of ``times`` [s] lies in the IMU's span."""
+        return _overlaps(times, self.imu_start, self.imu_end)
+
+    def imu_span(self) -> str:
+        """The IMU's span in words, for the messages."""
+        return f"{self.imu_label}'s times span {self.imu_start:.3f} - {self.imu_end:.3f} s"
+
+    def utc_span(self) -> str:
+        """The file's times in words (how many, first and last as UTC dates and times), for the messages."""
+        return f"{len(self.utc)} {self.what}, {_utc_text(float(self.utc[0]))} - {_utc_text(float(self.utc[-1]))}"
+
+
+def _overlapping(request: _ScaleRequest) -> list[_Placement]:
+    """The placements on the requested scales whose times overlap the IMU's span: counted from the first time's
+    day (GPS week), or when none does so, from the day (week) before or after (a unix count has no period)."""
+    candidates = list(SCALES) if request.requested == AUTO else [request.requested]
+    found: list[_Placement] = []
+    for shifts in ((0,), (-1, 1)):  # the file's own day first: a shifted one only when that fits nowhere
+        found = [request.placed(scale, shift) for scale in candidates for shift in shifts
+                 if _PERIOD[scale] is not None or shift == 0]
+        found = [placement for placement in found if request.overlaps(placement.times)]
+        if found:
+            break
+    return found
+
+
+def _no_overlap_error(request: _ScaleRequest) -> InputError:
+    """The error for times that overlap the IMU's span on no requested scale: the file's span on every scale,
+    and the other scales on which they would overlap."""
+    requested, first = request.requested, float(request.utc[0])
+    on_each = ", ".join(f"as {describe_scale(scale, first)} {_span(request.placed(scale, 0).times)}"
+                        for scale in SCALES)
+    others = [scale for scale in SCALES if scale != requested and any(
+        request.overlaps(request.placed(scale, shift).times) for shift in (0, -1, 1))]
+    if requested == AUTO:
+        advice = ("on none of these scales do they overlap it: the IMU's clock is another (time since power-on, "
+                  "a simulated clock) or the files are of different flights")
+    elif others:
+        advice = (f"they overlap it as {' or '.join(others)}: give --time-scale "
+                  f"{' or '.join(others)} if that is the IMU's clock")
+    else:
+        advice = ("they overlap it on no other scale either: the IMU's clock is another (time since power-on, a "
+                  "simulated clock) or the files are of different flights")
+    scale_asked = "" if requested == AUTO else f" as {requested} ({request.asked})"
+    return InputError(request.path, None, None, f"the {request.what} do not overlap the IMU's time span{scale_asked}: "
+                      f"{request.imu_span()}; the file's {request.utc_span()} UTC, are {on_each}; {advice}. The IMU's "
+                      "times must be UTC seconds of the day, GPS seconds of the week or Unix seconds (--time-scale "
+                      "utc-day, gps-week, unix; docs/rtklib.md)")
+
+
+def _ambiguous_error(request: _ScaleRequest, found: list[_Placement]) -> InputError:
+    """The error for times that overlap the IMU's span on more than one scale (a Sunday's UTC seconds of day and
+    GPS seconds of week)."""
+    on_each = "; ".join(f"as {describe_scale(placement.scale, placement.reference_utc)} {_span(placement.times)}"
+                        for placement in found)
+    return InputError(request.path, None, None, f"cannot tell the IMU's time scale: {request.imu_span()}, and the "
+                      f"file's {request.utc_span()} UTC, overlap it on {len(found)} scales: {on_each}. On a Sunday UTC "
+                      "seconds of the day and GPS seconds of the week differ only by the leap seconds: give "
+                      "--time-scale utc-day or gps-week (docs/rtklib.md)")
+
+
 def choose_time_scale(path: Path | str, utc: np.ndarray, imu_time: np.ndarray, requested: str = AUTO,
                       imu_label: str = "imu.csv", what: str = "times", bag: bool = False) -> ScaleChoice:
     """The scale of :data:`SCALES` on which the UTC times ``utc`` [POSIX s] of the solution file ``path`` overlap
@@ -179,57 +271,21 @@ def choose_time_scale(path: Path | str, utc: np.ndarray, imu_time: np.ndarray, r
     imu_time = np.asarray(imu_time, dtype=float)
     if not len(utc):
         raise InputError(path, None, None, f"no {what} to place on the IMU's time scale")
-    imu_start, imu_end = float(imu_time[0]), float(imu_time[-1])
-    candidates = list(SCALES) if requested == AUTO else [requested]
-    first = float(utc[0])
-
-    def times_of(scale: str, shift: int) -> tuple[float, np.ndarray]:
-        period = _PERIOD[scale] or 0.0
-        reference = first + shift * period
-        return reference, solution_times(utc, SCALES[scale], reference)
-
-    found: list[tuple[str, float, np.ndarray]] = []
-    for shifts in ((0,), (-1, 1)):  # the file's own day first: a shifted one only when that fits nowhere
-        found = [(scale, *times_of(scale, shift)) for scale in candidates for shift in shifts
-                 if _PERIOD[scale] is not None or shift == 0]
-        found = [(scale, reference, times) for scale, reference, times in found
-                 if _overlaps(times, imu_start, imu_end)]
-        if found:
-            break
-    imu_span = f"{imu_label}'s times span {imu_start:.3f} - {imu_end:.3f} s"
-    utc_span = f"{len(utc)} {what}, {_utc_text(first)} - {_utc_text(float(utc[-1]))}"
+    request = _ScaleRequest(path=path, utc=utc, what=what, imu_label=imu_label, imu_start=float(imu_time[0]),
+                            imu_end=float(imu_time[-1]), requested=requested, asked=asked)
+    found = _overlapping(request)
     if not found:
-        on_each = ", ".join(f"as {describe_scale(scale, first)} {_span(times_of(scale, 0)[1])}" for scale in SCALES)
-        others = [scale for scale in SCALES if scale != requested and any(
-            _overlaps(times_of(scale, shift)[1], imu_start, imu_end) for shift in (0, -1, 1))]
-        if requested == AUTO:
-            advice = ("on none of these scales do they overlap it: the IMU's clock is another (time since power-on, "
-                      "a simulated clock) or the files are of different flights")
-        elif others:
-            advice = (f"they overlap it as {' or '.join(others)}: give --time-scale "
-                      f"{' or '.join(others)} if that is the IMU's clock")
-        else:
-            advice = ("they overlap it on no other scale either: the IMU's clock is another (time since power-on, a "
-                      "simulated clock) or the files are of different flights")
-        scale_asked = "" if requested == AUTO else f" as {requested} ({asked})"
-        raise InputError(path, None, None, f"the {what} do not overlap the IMU's time span{scale_asked}: "
-                         f"{imu_span}; the file's {utc_span} UTC, are {on_each}; {advice}. The IMU's times must be "
-                         "UTC seconds of the day, GPS seconds of the week or Unix seconds (--time-scale utc-day, "
-                         "gps-week, unix; docs/rtklib.md)")
+        raise _no_overlap_error(request)
     if len(found) > 1:
-        on_each = "; ".join(f"as {describe_scale(scale, reference)} {_span(times)}"
-                            for scale, reference, times in found)
-        raise InputError(path, None, None, f"cannot tell the IMU's time scale: {imu_span}, and the file's "
-                         f"{utc_span} UTC, overlap it on {len(found)} scales: {on_each}. On a Sunday UTC seconds "
-                         "of the day and GPS seconds of the week differ only by the leap seconds: give --time-scale "
-                         "utc-day or gps-week (docs/rtklib.md)")
-    scale, reference, times = found[0]
+        raise _ambiguous_error(request, found)
+    placement = found[0]
     how = (f"on {imu_label}'s scale ({asked})" if requested != AUTO else
-           f"on {imu_label}'s scale, the only one on which they overlap its span ({imu_start:.3f} - {imu_end:.3f} s; "
-           "--time-scale sets it)")
-    notice = InputNotice(path, [], None, f"{what} taken as {describe_scale(scale, reference)} ({_span(times)}), "
-                         f"{how}")
-    return ScaleChoice(scale=scale, reference_utc=reference, times=times, notice=notice)
+           f"on {imu_label}'s scale, the only one on which they overlap its span ({request.imu_start:.3f} - "
+           f"{request.imu_end:.3f} s; --time-scale sets it)")
+    notice = InputNotice(path, [], None, f"{what} taken as {describe_scale(placement.scale, placement.reference_utc)} "
+                         f"({_span(placement.times)}), {how}")
+    return ScaleChoice(scale=placement.scale, reference_utc=placement.reference_utc, times=placement.times,
+                       notice=notice)
 
 
 def read_gnss_on_imu_scale(path: Path | str, imu_time: np.ndarray, requested: str = AUTO,

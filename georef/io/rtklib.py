@@ -214,8 +214,22 @@ def _column_header(text: str) -> tuple[str, list[str], str | None] | None:
     return names[0].upper(), lowered, separator
 
 
-def _parse_header(path: Path, lines: list[str]) -> tuple[PosHeader, int]:
-    """The header, and the index of the first data line."""
+@dataclass(frozen=True)
+class _HeaderLines:
+    """The ``%`` lines of a header that georef reads, each with its 1-based file line: ``program`` (the text after
+    ``% program :``), ``ref`` (the ``% ref pos`` values, not yet numbers), ``format_match`` (the ``(lat/lon/height=
+    ...,Q=`` line), ``column`` (time system, lower-case names, separator of the column header); ``first_data``: the
+    0-based index of the first line that is not a header line (the number of lines when there is none)."""
+
+    program: str | None
+    ref: tuple[int, list[str]] | None
+    format_match: tuple[int, re.Match[str]] | None
+    column: tuple[int, tuple[str, list[str], str | None]] | None
+    first_data: int
+
+
+def _scan_header(lines: list[str]) -> _HeaderLines:
+    """The header lines georef reads, from the ``%`` lines before the first solution line (blank lines skipped)."""
     program = None
     ref: tuple[int, list[str]] | None = None
     format_match: tuple[int, re.Match[str]] | None = None
@@ -237,13 +251,12 @@ def _parse_header(path: Path, lines: list[str]) -> tuple[PosHeader, int]:
             format_match = (index + 1, found)
         elif (parsed := _column_header(text)) is not None:
             column = (index + 1, parsed)
-    if column is None:
-        where = first_data + 1 if first_data < len(lines) else None
-        raise InputError(path, where, None, "no RTKLIB column header line (a '%' line such as '%  GPST  "
-                         "latitude(deg) longitude(deg) height(m) Q ns sdn(m) ...') before the solutions: write the "
-                         "solution with its header (RTKLIB option out-outhead=on)")
-    column_line, (time_system, names, separator) = column
-    layout = next(key for key, (positions, _) in _LAYOUTS.items() if names[:3] == list(positions))
+    return _HeaderLines(program=program, ref=ref, format_match=format_match, column=column, first_data=first_data)
+
+
+def _check_columns(path: Path, layout: str, names: list[str], column_line: int) -> None:
+    """Refuse a column header whose names after the time differ from RTKLIB's for ``layout``: positions, Q, ns,
+    then the six sd columns (the llh-deg layout's sixth may be called ``sdue(m)``, as the d m s layout's is)."""
     expected = [*_LAYOUTS[layout][0], *_COMMON, *_LAYOUTS[layout][1]]
     for k, want in enumerate(expected):
         got = names[k] if k < len(names) else None
@@ -252,35 +265,57 @@ def _parse_header(path: Path, lines: list[str]) -> tuple[PosHeader, int]:
             raise InputError(path, column_line, got if got is not None else want,
                              f"RTKLIB's {layout} layout has {want!r} as column {k + 2} (after the time), "
                              f"found {got!r}")
-    height = "ellipsoidal"
-    if format_match is not None:
-        line, found = format_match
-        kind = "xyz" if found.group("xyz") else "enu" if found.group("enu") else "llh"
-        if kind != layout[:3]:
-            raise InputError(path, line, None, f"the header line says {kind} positions but the column header "
-                             f"(line {column_line}) has the {layout} columns")
-        datum = (found.group("datum") or found.group("xyz") or found.group("enu")).strip()
-        if datum.upper() != "WGS84":
-            raise InputError(path, line, None, f"datum {excerpt(datum)}: georef reads WGS84 solutions only (write "
-                             "the solution with out-datum=wgs84)")
-        if kind == "llh":
-            height = found.group("height").strip().lower()
-            if height not in ("ellipsoidal", "geodetic"):
-                raise InputError(path, line, None, f"height type {excerpt(height)}: RTKLIB writes ellipsoidal or "
-                                 "geodetic")
-    elif layout.startswith("llh"):
-        raise InputError(path, column_line, "height(m)", "the header does not say whether the heights are "
-                         "ellipsoidal or geodetic (its '% (lat/lon/height=WGS84/...' line is missing): write the "
-                         "solution with its header (out-outhead=on)")
+
+
+def _height_type(path: Path, format_match: tuple[int, re.Match[str]] | None, layout: str, column_line: int) -> str:
+    """``ellipsoidal`` or ``geodetic`` (above a geoid), as the ``(lat/lon/height=WGS84/...`` line says; x/y/z and
+    e/n/u positions are ellipsoidal. Refuses a line naming other positions than the columns, a datum other than
+    WGS84, and latitude/longitude columns without the line."""
+    if format_match is None:
+        if layout.startswith("llh"):
+            raise InputError(path, column_line, "height(m)", "the header does not say whether the heights are "
+                             "ellipsoidal or geodetic (its '% (lat/lon/height=WGS84/...' line is missing): write the "
+                             "solution with its header (out-outhead=on)")
+        return "ellipsoidal"
+    line, found = format_match
+    kind = "xyz" if found.group("xyz") else "enu" if found.group("enu") else "llh"
+    if kind != layout[:3]:
+        raise InputError(path, line, None, f"the header line says {kind} positions but the column header "
+                         f"(line {column_line}) has the {layout} columns")
+    datum = (found.group("datum") or found.group("xyz") or found.group("enu")).strip()
+    if datum.upper() != "WGS84":
+        raise InputError(path, line, None, f"datum {excerpt(datum)}: georef reads WGS84 solutions only (write "
+                         "the solution with out-datum=wgs84)")
+    if kind != "llh":
+        return "ellipsoidal"
+    height = found.group("height").strip().lower()
+    if height not in ("ellipsoidal", "geodetic"):
+        raise InputError(path, line, None, f"height type {excerpt(height)}: RTKLIB writes ellipsoidal or "
+                         "geodetic")
+    return height
+
+
+def _parse_header(path: Path, lines: list[str]) -> tuple[PosHeader, int]:
+    """The header, and the 0-based index of the first data line."""
+    scanned = _scan_header(lines)
+    if scanned.column is None:
+        where = scanned.first_data + 1 if scanned.first_data < len(lines) else None
+        raise InputError(path, where, None, "no RTKLIB column header line (a '%' line such as '%  GPST  "
+                         "latitude(deg) longitude(deg) height(m) Q ns sdn(m) ...') before the solutions: write the "
+                         "solution with its header (RTKLIB option out-outhead=on)")
+    column_line, (time_system, names, separator) = scanned.column
+    layout = next(key for key, (positions, _) in _LAYOUTS.items() if names[:3] == list(positions))
+    _check_columns(path, layout, names, column_line)
+    height = _height_type(path, scanned.format_match, layout, column_line)
     base = None
     base_line = None
-    if ref is not None:
-        base_line, values = ref
+    if scanned.ref is not None:
+        base_line, values = scanned.ref
         base = _parse_base(path, base_line, values)
     header = PosHeader(time_system=time_system, layout=layout, height=height, columns=names, column_line=column_line,
-                       separator=separator, program=program, base=base, base_line=base_line,
-                       format_line=format_match[0] if format_match else None)
-    return header, first_data
+                       separator=separator, program=scanned.program, base=base, base_line=base_line,
+                       format_line=scanned.format_match[0] if scanned.format_match else None)
+    return header, scanned.first_data
 
 
 def _parse_base(path: Path, line: int, values: list[str]) -> tuple[float, float, float]:
@@ -340,14 +375,59 @@ def _clock_reading(path: Path, line: int, column: str, first: str, second: str) 
                          "a GPS week and seconds of week") from None
 
 
-def read_pos_solution(path: Path | str, geoid: str = EGM96_HEIGHT) -> PosSolution:
-    """Every epoch of an RTKLIB/Emlid ``.pos`` file, in UTC and WGS 84 with NED covariances.
+#: where each quantity sits in a row of the columns :func:`read_pos_solution` reads (:attr:`_ColumnPlan.wanted`):
+#: the three positions, solution quality Q, satellites, the three standard deviations, the three signed roots of
+#: the covariances (all in the order and frame of the layout's columns), then the known tail columns present
+_POSITION, _Q, _NS, _SD, _CROSS, _TAIL = slice(0, 3), 3, 4, slice(5, 8), slice(8, 11), 11
 
-    ``geoid``: the vertical CRS (PROJ name) of the heights when the header says ``geodetic`` (RTKLIB's own
-    default is its embedded EGM96; the file does not say which model it used). Errors name the file, line and
-    column.
-    """
-    path = Path(path)
+
+@dataclass(frozen=True)
+class _ColumnPlan:
+    """Where the columns georef reads sit in a solution line split into fields: ``width`` the fields of a line
+    (the time's two included), ``column_of`` column name -> (its first field, how many fields it spans),
+    ``sd_names`` the header's own names of the six sd columns, ``wanted`` the columns read into a row, in the
+    row's order (:data:`_POSITION` ...), ``unknown`` the tail columns georef does not use."""
+
+    width: int
+    column_of: dict[str, tuple[int, int]]
+    sd_names: list[str]
+    wanted: list[str]
+    unknown: list[str]
+
+
+def _plan_columns(header: PosHeader) -> _ColumnPlan:
+    """Which fields of a solution line hold which column, from the column header's names."""
+    positions, sds = _LAYOUTS[header.layout]
+    names = header.columns
+    spans = [_FIELDS.get(name, 1) for name in names]
+    offsets = np.concatenate([[2], 2 + np.cumsum(spans)])  # the time spans the first two fields
+    column_of = {name: (int(offsets[k]), spans[k]) for k, name in enumerate(names)}
+    n_fixed = len(positions) + len(_COMMON)
+    unknown = [name for name in names[n_fixed + len(sds):] if name not in _KNOWN_TAIL]
+    # the header's own names (RTKLIB's d m s layout calls the north-up term sdue), then the known tail
+    sd_names = names[n_fixed:n_fixed + len(sds)]
+    wanted = [*names[:n_fixed], *sd_names, *[n for n in _KNOWN_TAIL if n in column_of]]
+    return _ColumnPlan(width=int(offsets[-1]), column_of=column_of, sd_names=sd_names, wanted=wanted,
+                       unknown=unknown)
+
+
+@dataclass
+class _DataLines:
+    """The solution lines as read: ``rows`` the wanted columns (:attr:`_ColumnPlan.wanted`) as numbers (degrees,
+    metres, seconds as the file gives them), ``readings`` their times on the file's time system's calendar [s since
+    1970-01-01 of that calendar], ``lines`` their 1-based file lines; ``mark_readings`` and ``mark_lines`` the same
+    for demo5's time marks without a solution."""
+
+    rows: list[list[float]] = field(default_factory=list)
+    readings: list[float] = field(default_factory=list)
+    lines: list[int] = field(default_factory=list)
+    mark_readings: list[float] = field(default_factory=list)
+    mark_lines: list[int] = field(default_factory=list)
+
+
+def _decode_lines(path: Path) -> list[str]:
+    """The file's lines as text (gzip unpacked, ``\\r`` of CRLF ends dropped); an :class:`InputError` for a file
+    that cannot be read, a damaged gzip file or a byte that is not UTF-8 (naming its line)."""
     try:
         raw_lines = _read_bytes(path).split(b"\n")
     except OSError as exc:
@@ -362,29 +442,34 @@ def read_pos_solution(path: Path | str, geoid: str = EGM96_HEIGHT) -> PosSolutio
         except UnicodeDecodeError:
             raise InputError(path, index + 1, None, "not text (a byte that is not UTF-8): an RTKLIB .pos file is "
                              "text") from None
-    header, first = _parse_header(path, lines)
-    positions, sds = _LAYOUTS[header.layout]
-    names = header.columns
-    spans = [_FIELDS.get(name, 1) for name in names]
-    offsets = np.concatenate([[2], 2 + np.cumsum(spans)])  # the time spans the first two fields
-    width = int(offsets[-1])
-    column_of = {name: (int(offsets[k]), spans[k]) for k, name in enumerate(names)}
-    unknown = [name for name in names[len(positions) + len(_COMMON) + len(sds):] if name not in _KNOWN_TAIL]
-    notices: list[InputNotice] = []
-    if unknown:
-        notices.append(InputNotice(path, [header.column_line], None, f"column(s) {', '.join(unknown)} not used"))
-    if header.layout == "enu" and header.base is None:
-        raise InputError(path, header.column_line, positions[0], "east/north/up baselines need the base position, "
-                         "and the header has no '% ref pos' line")
-    time_label = header.time_system
-    rows: list[list[float]] = []
-    readings: list[float] = []
-    line_numbers: list[int] = []
-    invalid_readings: list[float] = []
-    invalid_lines: list[int] = []
-    # the header's own names (RTKLIB's d m s layout calls the north-up term sdue), then the known tail
-    sd_names = names[len(positions) + len(_COMMON):len(positions) + len(_COMMON) + len(sds)]
-    wanted = [*names[:len(positions) + len(_COMMON)], *sd_names, *[n for n in _KNOWN_TAIL if n in column_of]]
+    return lines
+
+
+def _parse_row(path: Path, number: int, fields: list[str], plan: _ColumnPlan) -> list[float]:
+    """The wanted columns of the solution line ``number`` (split into ``fields``) as numbers: d m s as degrees,
+    anything else as the finite float it must be."""
+    row: list[float] = []
+    for name in plan.wanted:
+        start, span = plan.column_of[name]
+        if span == 3:
+            row.append(_dms(path, number, name, fields[start:start + 3]))
+            continue
+        try:
+            value = float(fields[start])
+        except ValueError:
+            raise InputError(path, number, name, f"not a number: {excerpt(fields[start])}") from None
+        if not np.isfinite(value):
+            raise InputError(path, number, name, f"not a finite number: {excerpt(fields[start])}")
+        row.append(value)
+    return row
+
+
+def _read_data_lines(path: Path, lines: list[str], first: int, header: PosHeader, plan: _ColumnPlan,
+                     notices: list[InputNotice]) -> _DataLines:
+    """The lines from index ``first`` on (``%`` and blank lines skipped): solutions, and demo5's time marks
+    without one. A last line cut short (a file copied while RTKLIB wrote it) is dropped with a notice; any other
+    line with more or fewer fields than the column header gives is an :class:`InputError`."""
+    read = _DataLines()
     last_line = max((k + 1 for k in range(first, len(lines)) if lines[k].strip()), default=0)
     for index in range(first, len(lines)):
         text = lines[index].strip()
@@ -394,75 +479,109 @@ def read_pos_solution(path: Path | str, geoid: str = EGM96_HEIGHT) -> PosSolutio
         fields = (text.replace(header.separator, " ") if header.separator else text).split()
         if _INVALID_MARK in text.lower() and len(fields) >= 2:
             # demo5 writes a time mark it has no solution for as "<time>   Q=0, Time mark is not valid"
-            invalid_readings.append(_clock_reading(path, number, time_label, fields[0], fields[1]))
-            invalid_lines.append(number)
+            read.mark_readings.append(_clock_reading(path, number, header.time_system, fields[0], fields[1]))
+            read.mark_lines.append(number)
             continue
-        if len(fields) != width:
-            if len(fields) < width and number == last_line:
+        if len(fields) != plan.width:
+            if len(fields) < plan.width and number == last_line:
                 # a file copied while RTKLIB was still writing it: its last line cut short
-                notices.append(InputNotice(path, [number], None, f"last line cut short ({len(fields)} of {width} "
-                                           "fields): dropped"))
+                notices.append(InputNotice(path, [number], None, f"last line cut short ({len(fields)} of "
+                                           f"{plan.width} fields): dropped"))
                 continue
             raise InputError(path, number, None, f"{len(fields)} fields, the column header (line "
-                             f"{header.column_line}) gives {width}")
-        readings.append(_clock_reading(path, number, time_label, fields[0], fields[1]))
-        row: list[float] = []
-        for name in wanted:
-            start, span = column_of[name]
-            if span == 3:
-                row.append(_dms(path, number, name, fields[start:start + 3]))
-                continue
-            try:
-                value = float(fields[start])
-            except ValueError:
-                raise InputError(path, number, name, f"not a number: {excerpt(fields[start])}") from None
-            if not np.isfinite(value):
-                raise InputError(path, number, name, f"not a finite number: {excerpt(fields[start])}")
-            row.append(value)
-        rows.append(row)
-        line_numbers.append(number)
-    invalid_utc = _to_utc(np.array(invalid_readings), header.time_system)
-    if not rows:
-        if invalid_lines:
-            empty = np.empty(0)
-            return PosSolution(path=path, header=header, utc=empty, lat_deg=empty, lon_deg=empty, height=empty,
-                               quality=np.empty(0, np.int64), n_sat=np.empty(0, np.int64), cov_ned=np.empty((0, 3, 3)),
-                               age=empty, ratio=empty, line=np.empty(0, np.int64), notices=notices,
-                               invalid_mark_utc=invalid_utc, invalid_mark_line=np.array(invalid_lines, np.int64))
-        raise InputError(path, None, None, "no solution lines after the header")
-    data = np.array(rows)
-    line = np.array(line_numbers, dtype=np.int64)
-    n_tail = data.shape[1] - 11
-    quality_f, n_sat = data[:, 3], data[:, 4]
-    bad_q = np.flatnonzero((quality_f != np.round(quality_f)) | (quality_f < 1) | (quality_f > 7))
+                             f"{header.column_line}) gives {plan.width}")
+        read.readings.append(_clock_reading(path, number, header.time_system, fields[0], fields[1]))
+        read.rows.append(_parse_row(path, number, fields, plan))
+        read.lines.append(number)
+    return read
+
+
+def _marks_only(path: Path, header: PosHeader, notices: list[InputNotice], mark_utc: np.ndarray,
+                mark_line: np.ndarray) -> PosSolution:
+    """A solution without epochs, holding only an event file's time marks (UTC [POSIX s] and file lines)."""
+    empty = np.empty(0)
+    return PosSolution(path=path, header=header, utc=empty, lat_deg=empty, lon_deg=empty, height=empty,
+                       quality=np.empty(0, np.int64), n_sat=np.empty(0, np.int64), cov_ned=np.empty((0, 3, 3)),
+                       age=empty, ratio=empty, line=np.empty(0, np.int64), notices=notices,
+                       invalid_mark_utc=mark_utc, invalid_mark_line=mark_line)
+
+
+def _check_quality_and_sigmas(path: Path, data: np.ndarray, line: np.ndarray, sd_names: list[str]) -> None:
+    """Refuse a solution quality that is not RTKLIB's (an integer 1-7) and a negative standard deviation."""
+    quality = data[:, _Q]
+    bad_q = np.flatnonzero((quality != np.round(quality)) | (quality < 1) | (quality > 7))
     if len(bad_q):
-        raise InputError(path, int(line[bad_q[0]]), "q", f"solution quality {quality_f[bad_q[0]]:g}: RTKLIB writes "
+        raise InputError(path, int(line[bad_q[0]]), "q", f"solution quality {quality[bad_q[0]]:g}: RTKLIB writes "
                          "1 fix, 2 float, 3 SBAS, 4 DGPS, 5 single, 6 PPP (7 dead reckoning, demo5)")
-    sd = data[:, 5:8]
+    sd = data[:, _SD]
     negative = np.flatnonzero(np.any(sd < 0, axis=1))
     if len(negative):
         k = int(negative[0])
         axis = int(np.argmax(sd[k] < 0))
         raise InputError(path, int(line[k]), sd_names[axis], "a standard deviation must not be negative")
-    utc = _to_utc(np.array(readings), header.time_system)
-    _check_times(path, utc, line, time_label)
-    lat_deg, lon_deg, height, cov_ned = _positions(path, header, data, notices)
-    if header.height == "geodetic":
-        geoid_h = height
-        height, used = ellipsoidal_from_orthometric(lat_deg, lon_deg, geoid_h, geoid)
-        notices.append(InputNotice(path, [header.format_line or header.column_line], "height(m)",
-                                   f"heights above the geoid converted to WGS 84 ellipsoidal with {used}; RTKLIB's own "
-                                   "geoid (by default its embedded 1-degree EGM96) may differ from this grid by "
-                                   "decimetres: write ellipsoidal heights (out-height=ellipsoidal) to avoid both"))
-    bad_lat = np.flatnonzero((np.abs(lat_deg) > 90.0) | (np.abs(lon_deg) > 180.0))
+
+
+def _ellipsoidal_height(path: Path, header: PosHeader, where: _Positions, geoid: str,
+                        notices: list[InputNotice]) -> np.ndarray:
+    """The WGS 84 ellipsoidal heights [m] of the positions: the file's, or its heights above the geoid
+    (``geodetic``) converted with ``geoid`` (a PROJ vertical CRS), with a notice saying so."""
+    if header.height != "geodetic":
+        return where.height
+    height, used = ellipsoidal_from_orthometric(where.lat_deg, where.lon_deg, where.height, geoid)
+    notices.append(InputNotice(path, [header.format_line or header.column_line], "height(m)",
+                               f"heights above the geoid converted to WGS 84 ellipsoidal with {used}; RTKLIB's own "
+                               "geoid (by default its embedded 1-degree EGM96) may differ from this grid by "
+                               "decimetres: write ellipsoidal heights (out-height=ellipsoidal) to avoid both"))
+    return height
+
+
+def _tail_columns(data: np.ndarray, plan: _ColumnPlan) -> dict[str, np.ndarray]:
+    """The known tail columns the file has (age [s], ratio), by name."""
+    present = [name for name in _KNOWN_TAIL if name in plan.column_of]
+    return {name: data[:, _TAIL + k] for k, name in enumerate(present)} if data.shape[1] > _TAIL else {}
+
+
+def read_pos_solution(path: Path | str, geoid: str = EGM96_HEIGHT) -> PosSolution:
+    """Every epoch of an RTKLIB/Emlid ``.pos`` file, in UTC and WGS 84 with NED covariances.
+
+    ``geoid``: the vertical CRS (PROJ name) of the heights when the header says ``geodetic`` (RTKLIB's own
+    default is its embedded EGM96; the file does not say which model it used). Errors name the file, line and
+    column.
+    """
+    path = Path(path)
+    lines = _decode_lines(path)
+    header, first = _parse_header(path, lines)
+    plan = _plan_columns(header)
+    notices: list[InputNotice] = []
+    if plan.unknown:
+        notices.append(InputNotice(path, [header.column_line], None, f"column(s) {', '.join(plan.unknown)} not used"))
+    positions = _LAYOUTS[header.layout][0]
+    if header.layout == "enu" and header.base is None:
+        raise InputError(path, header.column_line, positions[0], "east/north/up baselines need the base position, "
+                         "and the header has no '% ref pos' line")
+    read = _read_data_lines(path, lines, first, header, plan, notices)
+    mark_utc = _to_utc(np.array(read.mark_readings), header.time_system)
+    mark_line = np.array(read.mark_lines, np.int64)
+    if not read.rows:
+        if read.mark_lines:
+            return _marks_only(path, header, notices, mark_utc, mark_line)
+        raise InputError(path, None, None, "no solution lines after the header")
+    data = np.array(read.rows)
+    line = np.array(read.lines, dtype=np.int64)
+    _check_quality_and_sigmas(path, data, line, plan.sd_names)
+    utc = _to_utc(np.array(read.readings), header.time_system)
+    _check_times(path, utc, line, header.time_system)
+    where = _positions(path, header, data, notices)
+    height = _ellipsoidal_height(path, header, where, geoid, notices)
+    bad_lat = np.flatnonzero((np.abs(where.lat_deg) > 90.0) | (np.abs(where.lon_deg) > 180.0))
     if len(bad_lat):
         raise InputError(path, int(line[bad_lat[0]]), positions[0], "coordinate outside the valid range")
-    tail = {name: data[:, 11 + k] for k, name in enumerate(n for n in _KNOWN_TAIL if n in column_of)} if n_tail else {}
-    return PosSolution(path=path, header=header, utc=utc, lat_deg=lat_deg, lon_deg=lon_deg, height=height,
-                       quality=quality_f.astype(np.int64), n_sat=n_sat.astype(np.int64), cov_ned=cov_ned,
-                       age=tail.get("age(s)", np.full(len(line), np.nan)),
+    tail = _tail_columns(data, plan)
+    return PosSolution(path=path, header=header, utc=utc, lat_deg=where.lat_deg, lon_deg=where.lon_deg,
+                       height=height, quality=data[:, _Q].astype(np.int64), n_sat=data[:, _NS].astype(np.int64),
+                       cov_ned=where.cov_ned, age=tail.get("age(s)", np.full(len(line), np.nan)),
                        ratio=tail.get("ratio", np.full(len(line), np.nan)), line=line, notices=notices,
-                       invalid_mark_utc=invalid_utc, invalid_mark_line=np.array(invalid_lines, np.int64))
+                       invalid_mark_utc=mark_utc, invalid_mark_line=mark_line)
 
 
 def _to_utc(readings: np.ndarray, time_system: str) -> np.ndarray:
@@ -481,23 +600,33 @@ def _check_times(path: Path, utc: np.ndarray, line: np.ndarray, column: str) -> 
         raise InputError(path, int(line[same[0] + 1]), column, f"the same time as line {int(line[same[0]])}")
 
 
-def _positions(path: Path, header: PosHeader, data: np.ndarray, notices: list[InputNotice]
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+@dataclass(frozen=True)
+class _Positions:
+    """The positions of the solution lines: WGS 84 latitude, longitude [deg], height [m, ellipsoidal or above the
+    geoid, as the file's] and NED covariance (K, 3, 3) [m^2] at each position."""
+
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    height: np.ndarray
+    cov_ned: np.ndarray
+
+
+def _positions(path: Path, header: PosHeader, data: np.ndarray, notices: list[InputNotice]) -> _Positions:
     """Latitude, longitude [deg], height [m, as the file's], NED covariance (K, 3, 3) [m^2] of the rows."""
-    position, sd, cross = data[:, 0:3], data[:, 5:8], data[:, 8:11]
+    position, sd, cross = data[:, _POSITION], data[:, _SD], data[:, _CROSS]
     if header.layout.startswith("llh"):
         cov_neu = covariance_from_signed_roots(sd, cross)  # sdn sde sdu, then ne, eu, un
-        return position[:, 0], position[:, 1], position[:, 2], neu_to_ned_covariance(cov_neu)
+        return _Positions(position[:, 0], position[:, 1], position[:, 2], neu_to_ned_covariance(cov_neu))
     if header.layout == "xyz":
         lat, lon, h = ecef_to_geodetic(position)
         cov_e = covariance_from_signed_roots(sd, cross)  # sdx sdy sdz, then xy, yz, zx
-        return np.degrees(lat), np.degrees(lon), h, ecef_to_ned_covariance(cov_e, lat, lon)
+        return _Positions(np.degrees(lat), np.degrees(lon), h, ecef_to_ned_covariance(cov_e, lat, lon))
     assert header.base is not None
     base_lat, base_lon, base_h = header.base
     lat, lon, h = ecef_to_geodetic(enu_baseline_to_ecef(position, base_lat, base_lon, base_h))
     cov_enu = covariance_from_signed_roots(sd, cross)  # sde sdn sdu, then en, nu, ue
     cov = enu_at_base_to_ned_covariance(cov_enu, base_lat, base_lon, lat, lon)
-    return np.degrees(lat), np.degrees(lon), h, cov
+    return _Positions(np.degrees(lat), np.degrees(lon), h, cov)
 
 
 def _time_notice(solution: PosSolution, scale: str, first_utc: float | None = None) -> InputNotice:
@@ -521,6 +650,56 @@ def _quality_notices(solution: PosSolution) -> list[InputNotice]:
     return [InputNotice(solution.path, [], "Q", f"{len(solution)} solutions: {summary}")]
 
 
+def _reading_notices(solution: PosSolution, time_scale: str, reference_utc: float | None) -> list[InputNotice]:
+    """The notices of reading the file as fixes: the file's own, its time system and scale, its solution
+    qualities, the time marks without a solution skipped and the leap seconds' validity."""
+    notices = [*solution.notices, _time_notice(solution, time_scale, reference_utc), *_quality_notices(solution)]
+    if len(solution.invalid_mark_line):
+        notices.append(InputNotice(solution.path, solution.invalid_mark_line.tolist(), None, "time-mark lines "
+                                   "without a solution ('Time mark is not valid') skipped: not GNSS fixes"))
+    note = leap_seconds_note(float(solution.utc[-1]))
+    if note:
+        notices.append(InputNotice(solution.path, [], solution.header.time_system, note))
+    return notices
+
+
+def _dropped(solution: PosSolution, drop_code_solutions: bool, notices: list[InputNotice]) -> np.ndarray:
+    """Which epochs are not used as fixes (bool (K,)): dead reckoning (Q 7) always, code-only solutions (Q 3, 4,
+    5) when ``drop_code_solutions`` and the file has carrier-phase ones; a notice for each kind dropped. An
+    :class:`InputError` when nothing is left."""
+    drop = solution.quality == 7
+    if drop.any():
+        notices.append(InputNotice(solution.path, solution.line[drop].tolist(), "Q", f"{int(drop.sum())} "
+                                   "dead-reckoning solution(s) (Q=7) dropped: not a GNSS fix"))
+    carrier = np.isin(solution.quality, CARRIER_QUALITIES)
+    code = np.isin(solution.quality, CODE_QUALITIES)
+    if drop_code_solutions and carrier.any() and code.any():
+        drop |= code
+        notices.append(InputNotice(solution.path, solution.line[code].tolist(), "Q", f"{int(code.sum())} code-only "
+                                   "solution(s) (Q=3 SBAS, 4 DGPS, 5 single) dropped: the file has carrier-phase "
+                                   "solutions (fix, float, PPP), which they would pull metres off"))
+    if drop.all():
+        raise InputError(solution.path, None, "Q", "no usable solution: every line was dropped (see the notices)")
+    return drop
+
+
+def _floored_covariance(solution: PosSolution, floors: Mapping[int, tuple[float, float, float]],
+                        notices: list[InputNotice]) -> np.ndarray:
+    """The NED covariances (K, 3, 3) [m^2] of every epoch with its north, east, up standard deviations raised to
+    ``floors[Q]`` [m] (correlations kept) and made positive semi-definite, with notices naming what changed."""
+    floor = np.array([floors[int(q)] for q in solution.quality], dtype=float)
+    raised = floor > np.sqrt(np.diagonal(solution.cov_ned, axis1=-2, axis2=-1))
+    cov = with_sigma_floor(solution.cov_ned, floor)
+    cov = _positive_semidefinite(solution, cov, notices)
+    if raised.any():
+        per_q = ", ".join(f"Q={q}: {floors[q][0]:g}/{floors[q][1]:g}/{floors[q][2]:g} m"
+                          for q in sorted(set(solution.quality[raised.any(axis=1)].tolist())))
+        notices.append(InputNotice(solution.path, [], "sdn/sde/sdu", f"{int(raised.any(axis=1).sum())} solution(s) "
+                                   f"with standard deviations below the floor (north/east/up {per_q}) raised to it, "
+                                   "the correlations kept"))
+    return cov
+
+
 def read_rtklib_gnss(path: Path | str, time_scale: str = "utc-day", sigma_floors: Mapping[int, tuple[float, float,
                      float]] | None = None, drop_code_solutions: bool = True, geoid: str = EGM96_HEIGHT,
                      reference_utc: float | None = None, solution: PosSolution | None = None) -> GnssEpochs:
@@ -542,36 +721,9 @@ def read_rtklib_gnss(path: Path | str, time_scale: str = "utc-day", sigma_floors
                          "file (give it to --events)")
     floors = dict(SIGMA_FLOORS)
     floors.update(sigma_floors or {})
-    notices = [*solution.notices, _time_notice(solution, time_scale, reference_utc), *_quality_notices(solution)]
-    if len(solution.invalid_mark_line):
-        notices.append(InputNotice(solution.path, solution.invalid_mark_line.tolist(), None, "time-mark lines "
-                                   "without a solution ('Time mark is not valid') skipped: not GNSS fixes"))
-    note = leap_seconds_note(float(solution.utc[-1]))
-    if note:
-        notices.append(InputNotice(solution.path, [], solution.header.time_system, note))
-    drop = solution.quality == 7
-    if drop.any():
-        notices.append(InputNotice(solution.path, solution.line[drop].tolist(), "Q", f"{int(drop.sum())} "
-                                   "dead-reckoning solution(s) (Q=7) dropped: not a GNSS fix"))
-    carrier = np.isin(solution.quality, CARRIER_QUALITIES)
-    code = np.isin(solution.quality, CODE_QUALITIES)
-    if drop_code_solutions and carrier.any() and code.any():
-        drop |= code
-        notices.append(InputNotice(solution.path, solution.line[code].tolist(), "Q", f"{int(code.sum())} code-only "
-                                   "solution(s) (Q=3 SBAS, 4 DGPS, 5 single) dropped: the file has carrier-phase "
-                                   "solutions (fix, float, PPP), which they would pull metres off"))
-    if drop.all():
-        raise InputError(solution.path, None, "Q", "no usable solution: every line was dropped (see the notices)")
-    floor = np.array([floors[int(q)] for q in solution.quality], dtype=float)
-    raised = floor > np.sqrt(np.diagonal(solution.cov_ned, axis1=-2, axis2=-1))
-    cov = with_sigma_floor(solution.cov_ned, floor)
-    cov = _positive_semidefinite(solution, cov, notices)
-    if raised.any():
-        per_q = ", ".join(f"Q={q}: {floors[q][0]:g}/{floors[q][1]:g}/{floors[q][2]:g} m"
-                          for q in sorted(set(solution.quality[raised.any(axis=1)].tolist())))
-        notices.append(InputNotice(solution.path, [], "sdn/sde/sdu", f"{int(raised.any(axis=1).sum())} solution(s) "
-                                   f"with standard deviations below the floor (north/east/up {per_q}) raised to it, "
-                                   "the correlations kept"))
+    notices = _reading_notices(solution, time_scale, reference_utc)
+    drop = _dropped(solution, drop_code_solutions, notices)
+    cov = _floored_covariance(solution, floors, notices)
     keep = ~drop
     times = solution_times(solution.utc, time_scale, reference_utc)
     sigma = np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
