@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from georef.frames.calibration import opensfm_to_image_map
+from georef.frames.earth import geodetic_to_ecef
 from georef.frames.photogrammetry import opk_to_rotation
 from georef.io.errors import InputError
 
@@ -93,7 +94,8 @@ def read_adjusted_cameras(path: Path | str, fmt: str | None = None) -> AdjustedC
     return cameras
 
 
-_LABEL_NAMES = ("label", "imagename", "name", "image", "camera", "filename")
+#: header names of the camera label column (``PhotoID``: Metashape's "Omega Phi Kappa" camera export)
+_LABEL_NAMES = ("label", "imagename", "name", "image", "camera", "filename", "photoid")
 
 
 def _normal(name: str) -> str:
@@ -125,9 +127,17 @@ def _header_and_rows(path: Path, text: str, fmt: str) -> tuple[list[str], int, l
     else:
         delimiter = max((",", "\t", ";"), key=header.count)
         cells = next(csv.reader(io.StringIO(header.lstrip("#")), delimiter=delimiter))
+        first_row = next((line for line in lines[header_line:] if line.strip() and not line.lstrip().startswith("#")),
+                         "")
+        if delimiter not in first_row:
+            # Metashape's "Omega Phi Kappa" export: a comma-separated '# PhotoID, X, Y, ...' header over
+            # tab-separated rows (a label may hold spaces: split on tabs where there are any)
+            def split(row: str) -> list[str]:
+                return [cell.strip() for cell in row.split("\t")] if "\t" in row else row.split()
+        else:
 
-        def split(row: str) -> list[str]:
-            return next(csv.reader(io.StringIO(row), delimiter=delimiter), [])
+            def split(row: str) -> list[str]:
+                return next(csv.reader(io.StringIO(row), delimiter=delimiter), [])
     rows = [(number, split(line)) for number, line in enumerate(lines[header_line:], header_line + 1)
             if line.strip() and not line.lstrip().startswith("#")]
     return [_normal(c) for c in cells], header_line, rows
@@ -219,5 +229,50 @@ def _read_odm(path: Path, text: str) -> AdjustedCameras:
         centre.append(properties["translation"])
         rotation.append(properties["rotation"])
     centre_arr = np.array(centre, dtype=float).reshape(-1, 3)
+    _check_odm_translation_is_map(path, document["features"], centre_arr)
     R_i_m = opensfm_to_image_map(np.array(rotation, dtype=float).reshape(-1, 3))
     return AdjustedCameras(path, "odm", labels, numbers, centre_arr[:, 0], centre_arr[:, 1], centre_arr[:, 2], R_i_m)
+
+
+# Horizontal spread [m] of the translations below which the geometry check says nothing.
+_ODM_MIN_SPREAD_M = 1.0
+# A map CRS changes distances by its point scale factor (UTM: 0.9996 to ~1.001); a ratio outside this band means
+# the translations are not in the CRS of the geometry.
+_ODM_SCALE_BAND = (0.5, 2.0)
+
+
+def _check_odm_translation_is_map(path: Path, features: list, centre: np.ndarray) -> None:
+    """Refuse a shots.geojson whose ``translation`` is not in a map CRS.
+
+    ODM writes ``geometry`` as the camera centre in WGS84 lon/lat. For a georeferenced reconstruction the
+    horizontal distance between two cameras from their ``translation`` [grid m] equals the one from their
+    ``geometry`` [m on the ellipsoid] times the CRS's point scale (~1). A reconstruction without GPS or GCPs is
+    pseudo-georeferenced by ODM (``opendm/pseudogeo.py``: UTM zone 30, scale 0.1): ``translation`` stays in the
+    local reconstruction frame and ``geometry`` is that frame scaled by 1/0.1² = 100 (a real ODM file,
+    tests/data/adjusted_cameras/README.md), so the ratio is far from 1. Features without a Point geometry, or
+    whose geometries all coincide (a placeholder), are not checked."""
+    points = []
+    for feature in features:
+        geometry = feature.get("geometry") if isinstance(feature, dict) else None
+        coords = geometry.get("coordinates") if isinstance(geometry, dict) and geometry.get("type") == "Point" else None
+        if not isinstance(coords, list) or len(coords) < 2 or not all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in coords[:2]):
+            return
+        points.append(coords[:2])
+    lon_lat = np.radians(np.array(points, dtype=float))
+    if len(lon_lat) < 2 or np.all(lon_lat == lon_lat[0]):
+        return
+    grid_spread = np.hypot(centre[:, 0] - centre[0, 0], centre[:, 1] - centre[0, 1])
+    far = int(np.argmax(grid_spread))
+    if grid_spread[far] < _ODM_MIN_SPREAD_M:
+        return
+    # Horizontal chord between the two cameras on the ellipsoid (heights 0): the geometry's distance [m].
+    ends = geodetic_to_ecef(lon_lat[[0, far], 1], lon_lat[[0, far], 0], 0.0)
+    ratio = float(np.linalg.norm(ends[1] - ends[0]) / grid_spread[far])
+    if not _ODM_SCALE_BAND[0] <= ratio <= _ODM_SCALE_BAND[1]:
+        raise InputError(path, None, f"features[{far}].geometry",
+                         f"the cameras' 'translation' is not in a map CRS: the distance between features 0 and {far} "
+                         f"is {grid_spread[far]:.3f} m from 'translation' but {ratio:.4g} times that from 'geometry' "
+                         "(lon/lat). ODM writes this for a reconstruction it pseudo-georeferenced (no GPS in the "
+                         "images and no GCPs): its cameras are in a local frame; georeference the block (geotagged "
+                         "images or GCPs) and export again")
