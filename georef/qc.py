@@ -803,8 +803,10 @@ def assess(nav: NavSolution, table: Mapping[str, Any] | None = None, cfg: Proces
     """Every check that applies to ``nav`` (any method), the EO ``table`` (``georef process``; columns or a
     DataFrame) and ``cfg``; ``kind`` says what the inputs were (``PosLog.kind``), for the advice.
 
-    The full-state filters (``rts``, ``ekf``: ``nav.diagnostics`` set) get every check; ``axis`` and ``graph``
-    the rejected fixes and, with a table, the frame checks.
+    The full-state filters get every check that applies: ``rts`` and ``ekf`` (``nav.diagnostics`` set), and
+    ``graph``, which carries the diagnostics of the EKF + RTS it starts from and adds ``graph vs rts`` (it has no
+    forward filter of its own, so no ``attitude sigmas``); ``axis`` gets the rejected fixes and, with a table, the
+    frame checks.
     """
     checks: list[Check | None] = [*check_innovations(nav, kind), check_held_out(nav, kind),
                                   check_attitude_scale(nav, kind), check_rejected(nav, cfg, kind),

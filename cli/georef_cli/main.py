@@ -1446,7 +1446,7 @@ def _exit_now(code: object) -> None:
     os._exit(status & 0xFF)
 
 
-def main() -> None:  # pragma: no cover - console entry point (tests/test_cli_speed.py runs it as a process)
+def main() -> None:  # pragma: no cover - console entry point (tests/test_cli.py runs it as a process)
     """The ``georef`` command: :data:`app`, then :func:`_exit_now` with its exit code. Tests call :data:`app`
     in-process (typer's runner), which never ends the process."""
     try:

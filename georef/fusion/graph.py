@@ -614,7 +614,7 @@ def _key_rows(t: np.ndarray, valid_rows: np.ndarray, fix_rows: np.ndarray) -> np
     first and last rows that RTS solved, so that the graph covers every row it does. An end row closer than
     ``MIN_EDGE_GAP`` [s] to the nearest fix's keyframe is left out: two keyframes milliseconds apart make an IMU
     factor whose information (a tactical-grade gyro over 8 ms: 5e-7 rad) swamps the rest of the system and
-    leaves it numerically indeterminate; rows beyond the last keyframe take its correction (``_solve``)."""
+    leaves it numerically indeterminate; rows beyond the last keyframe take its correction (``solve_graph_inputs``)."""
     rows = np.unique(fix_rows[(fix_rows >= valid_rows[0]) & (fix_rows <= valid_rows[-1])])
     first, last = valid_rows[0], valid_rows[-1]
     if not len(rows) or t[rows[0]] - t[first] > MIN_EDGE_GAP:
