@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
-# The filters' loops compiled ahead of time (georef/kernels.py). `georef build-kernels` alone decides what is out
+# The filters' loops compiled ahead of time (georef/aot.py). `georef build-kernels` alone decides what is out
 # of date, from a hash of the sources each kernel imports (found by reading them) and of the Python, numba, llvmlite
 # and numpy versions; with nothing to compile it takes about a second, so it runs every time (FORCE) rather than
 # trusting a list of files here that could drift from the imports.

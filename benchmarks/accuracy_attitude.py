@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from georef.attitude.evaluate import yaw_offset
+from georef.attitude.compare import yaw_offset
 from georef.attitude.run import estimate_attitude
 from georef.frames import wrap_pi
 from georef.sim.marg import MargConfig, simulate_marg

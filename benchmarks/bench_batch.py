@@ -69,10 +69,10 @@ def main() -> None:
         plain = time.perf_counter() - start
     assert all(row["status"] == "ok" for row in plain_rows)
     busy = sum(row["runtime_s"] for row in rows)
-    from georef import kernels
+    from georef import aot
 
     settings = "Dask defaults" if args.dask_defaults else "georef's worker settings"
-    print(f"{args.flights} flights of {args.minutes:g} min at 50 Hz, method {args.method}, kernels {kernels.LOADED}, "
+    print(f"{args.flights} flights of {args.minutes:g} min at 50 Hz, method {args.method}, kernels {aot.LOADED}, "
           f"{settings}:")
     print(f"  sequential (one process, warm):      {sequential:6.2f} s")
     print(f"  LocalCluster 2 workers (warm):       {parallel:6.2f} s   speed-up {sequential / parallel:.2f}x")

@@ -62,13 +62,13 @@ def time_compiled_kernel() -> dict[str, float]:
     """Make solve_ins time its compiled calls: the dict holds the seconds spent in the ins kernel's functions and
     the number of forward passes since the last reset (the noise fit runs several passes, section 4 of
     docs/method-ins.md), and the last forward + backward pass alone."""
-    from georef import kernels
+    from georef import aot
     from georef.fusion import ins
 
     totals = {"all": 0.0, "passes": 0.0, "last_pass": 0.0}
 
     def load(name):
-        kernel = kernels.load(name)
+        kernel = aot.load(name)
         if name != "ins":
             return kernel
         wrapped = {}
@@ -118,9 +118,9 @@ def main() -> None:
                   f"(alignment, {compiled['passes']:.0f} passes of the noise fit, calibration); compiled "
                   f"kernels {compiled['all']:.2f} s in all, the final pass {compiled['last_pass']:.2f} s = "
                   f"{epochs / compiled['last_pass']:,.0f} epochs/s")
-        from georef import kernels
+        from georef import aot
 
-        print(f"  kernels in this process: {kernels.LOADED}")
+        print(f"  kernels in this process: {aot.LOADED}")
         for mode in ("auto", "jit"):
             runs = [run_measured([str(georef), "process", str(folder / "POS.txt"), str(folder / "Kamera.txt"),
                                   "--config", str(folder / "flight.toml"), "--method", "rts", "-o",

@@ -3,7 +3,7 @@
     python benchmarks/kernel_startup.py [--runs 5]
 
 Every figure is measured in a fresh Python process (the cost a `georef` command pays), after numpy and
-georef.kernels are imported, and is the median (and best) of ``--runs`` processes:
+georef.aot are imported, and is the median (and best) of ``--runs`` processes:
 
 (a) ahead of time (numba.pycc, ``georef build-kernels``): hashing the kernel's inputs, loading the extension
     module and the first call of the ``axis`` kernel; and loading the larger ``ins`` kernel;
@@ -44,17 +44,17 @@ args = (t_imu, acc, t_fix, z_fix, r_fix, np.zeros(3), np.full(3, 1e-2), np.full(
 
 _KERNEL_SCRIPT = _AXIS_ARGS + """
 import json, sys, time
-from georef import kernels
+from georef import aot
 t0 = time.perf_counter()
-kernels.build_hash("axis")
+aot.build_hash("axis")
 t1 = time.perf_counter()
-axis = kernels.load("axis")
+axis = aot.load("axis")
 t2 = time.perf_counter()
 axis.axis_filter(*args)
 t3 = time.perf_counter()
-kernels.load("ins")
+aot.load("ins")
 t4 = time.perf_counter()
-assert kernels.LOADED["axis"] == kernels.LOADED["ins"] == sys.argv[1], kernels.LOADED
+assert aot.LOADED["axis"] == aot.LOADED["ins"] == sys.argv[1], aot.LOADED
 print(json.dumps({"hash": t1 - t0, "load": t2 - t1, "first call": t3 - t2, "axis total": t3 - t0,
                   "ins load": t4 - t3, "numba imported": "numba" in sys.modules}))
 """
@@ -138,17 +138,17 @@ def main() -> None:
         cache = {**base, "NUMBA_CACHE_DIR": str(scratch / "numba-cache")}
         _summary("(b0) numba JIT, empty cache", _runs(_JIT_SCRIPT, 1, cache))
         _summary("(b) numba JIT from its on-disk cache", _runs(_JIT_SCRIPT, runs, cache))
-        _summary("(b) through georef.kernels (GEOREF_KERNELS=jit)",
+        _summary("(b) through georef.aot (GEOREF_KERNELS=jit)",
                  _runs(_KERNEL_SCRIPT, runs, {**cache, "GEOREF_KERNELS": "jit"}, "jit"))
         if _compile_probe(scratch):
             _summary("(c) minimal C extension", _runs(_C_SCRIPT, runs, {**base, "PYTHONPATH": str(scratch)}))
         else:
             print("(c) minimal C extension: not measured, no C compiler")
         sys.path.insert(0, str(ROOT))
-        from georef import kernels
+        from georef import aot
 
-        stale = [name for name in kernels.KERNELS if kernels.stale_builds(name) or not any(
-            kernels.kernel_dir().glob(f"{kernels.aot_module_name(name)}.*"))]
+        stale = [name for name in aot.KERNELS if aot.stale_builds(name) or not any(
+            aot.kernel_dir().glob(f"{aot.aot_module_name(name)}.*"))]
         if stale:
             print(f"(d) georef build-kernels: not measured, {', '.join(stale)} would be compiled")
             return

@@ -32,8 +32,8 @@ import numpy as np
 import pandas as pd
 
 if TYPE_CHECKING:
-    from georef.align import GnssEpochs
     from georef.datasets.kitti import KittiLog
+    from georef.timing import GnssEpochs
 
 COMPONENTS = ("north", "east", "up", "roll", "pitch", "yaw")
 SIGMAS = ("sigma_n", "sigma_e", "sigma_u", "sigma_roll", "sigma_pitch", "sigma_yaw")

@@ -16,7 +16,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from georef.align import GnssEpochs
 from georef.config import MountingSection, OutputSection
 from georef.exposure import ExposureStates
 from georef.frames import C_e_n, dcm_to_euler, ecef_to_geodetic, skew, wrap_360
@@ -24,6 +23,7 @@ from georef.frames.mounting import camera_attitude, lever_arm_ecef, lever_arm_of
 from georef.frames.rotations import euler_error_jacobian
 from georef.io.camera import Exposures, repeated_frames
 from georef.io.image_names import ImageNames
+from georef.timing import GnssEpochs
 
 if TYPE_CHECKING:
     from collections.abc import Mapping

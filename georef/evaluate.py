@@ -8,7 +8,6 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from georef.align import GnssEpochs
 from georef.config import MountingSection, OutputSection
 from georef.eo import camera_eo_table
 from georef.exposure import ExposureStates
@@ -17,6 +16,7 @@ from georef.frames.mounting import lever_arm_ecef
 from georef.frames.rotations import attitude_at
 from georef.fusion.solution import NavSolution
 from georef.io.camera import Exposures
+from georef.timing import GnssEpochs
 
 ANGLES = ("roll", "pitch", "yaw")
 

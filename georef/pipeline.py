@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from georef.align import to_reference_day
 from georef.config import AxisSettings, CameraColumns, CameraSection, GnssSection, ProcessingConfig
 from georef.eo import (
     FLAG_AFTER_LAST_FIX,
@@ -40,6 +39,7 @@ from georef.io.events import read_events
 from georef.io.image_names import ImageNames
 from georef.io.pos import PosLog, read_pos
 from georef.qc import unapplied_latency
+from georef.timing import to_reference_day
 
 if TYPE_CHECKING:
     from collections.abc import Mapping

@@ -21,10 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from georef.align import GnssEpochs
 from georef.frames import C_e_n, euler_to_dcm, geodetic_to_ecef, wrap_pi
 from georef.frames.mounting import lever_arm_ecef
 from georef.fusion.solution import NavSolution
+from georef.timing import GnssEpochs
 
 MIN_SPEED = 3.0
 HOLD_S = 15.0

@@ -8,7 +8,7 @@ import pytest
 from georef_cli.main import app
 from typer.testing import CliRunner
 
-from georef.attitude.evaluate import attitude_rms, yaw_offset
+from georef.attitude.compare import attitude_rms, yaw_offset
 from georef.attitude.mekf import triad, vector_jacobian, vector_measurement
 from georef.attitude.run import estimate_attitude
 from georef.attitude.tilt import accel_tilt, angle_bias_kalman, complementary

@@ -16,9 +16,9 @@ import hashlib, sys
 import numpy as np
 if {import_first}:
     import scipy.linalg  # the normal lookup: numba finds the modules through the package
-from georef import kernels
+from georef import aot
 from georef.fusion import ins_layout as layout
-kernel = kernels.load("ins")
+kernel = aot.load("ins")
 rng = np.random.default_rng(3)
 n_ep, nx = 40, layout.NX_NAV
 Phi = np.eye(nx) + 0.01 * rng.standard_normal((n_ep, nx, nx))
@@ -34,7 +34,7 @@ out = kernel.rts_backward(np.full(n_ep, 0.5), Pm, Pp, Phi, 0.01 * rng.standard_n
                           np.zeros((0, 3, nx)), np.zeros(0, dtype=np.int64), np.zeros((0, 3)), True,
                           np.zeros((n_ep, nx)))
 digest = hashlib.sha256(b"".join(np.ascontiguousarray(a).tobytes() for a in out)).hexdigest()
-print(digest, "scipy.linalg" in sys.modules, kernels.LOADED["ins"])
+print(digest, "scipy.linalg" in sys.modules, aot.LOADED["ins"])
 import scipy.linalg
 print(bool(np.allclose(scipy.linalg.solve(Pp[1], np.ones(nx)) @ Pp[1], 1.0)))
 """

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from georef import kernels
+from georef import aot
 from georef.fusion import ins_layout as layout
 
 NX = layout.NX_NAV
@@ -70,7 +70,7 @@ def _smoothed(kernel, Phi, Pm, Pp, dx, m_plus):
 @pytest.mark.parametrize("seed", [0, 1])
 def test_a_pass_linearised_elsewhere_keeps_the_prior_mean(seed):
     rng = np.random.default_rng(seed)
-    kernel = kernels.load("ins")
+    kernel = aot.load("ins")
     Phi, Q, H, R, P0, y = _model(rng, 60)
     prior_mean = np.zeros(NX)
     reference = _closed_loop(Phi, Q, H, R, P0, y, prior_mean)
@@ -96,7 +96,7 @@ def test_a_pass_linearised_elsewhere_keeps_the_prior_mean(seed):
 
 def test_no_shift_after_a_restart():
     rng = np.random.default_rng(2)
-    kernel = kernels.load("ins")
+    kernel = aot.load("ins")
     Phi, Q, H, R, P0, y = _model(rng, 30)
     moved = _closed_loop(Phi, Q, H, R, P0, y, np.ones(NX))
     seg = np.zeros(30, dtype=bool)

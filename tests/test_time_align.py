@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from georef.align import extract_gnss_epochs, pos_sample_times, to_reference_day
+from georef.timing import extract_gnss_epochs, pos_sample_times, to_reference_day
 
 RATE = 50
 

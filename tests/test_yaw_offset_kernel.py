@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
+from georef.aot import load
 from georef.fusion.yaw_offset import HUBER_K
-from georef.kernels import load
 
 SIG = np.array([0.8, 1.1])  # north, east sigmas [m]
 

@@ -5,7 +5,7 @@
 * :mod:`georef.attitude.tilt` — accelerometer tilt, complementary filter, angle + gyro-bias Kalman filter;
 * :mod:`georef.attitude.mekf` — multiplicative EKF (quaternion + gyro bias) with TRIAD initialisation;
 * :mod:`georef.attitude.ukf` — an attitude UKF on the same state (USQUE-style error sigma points);
-* :mod:`georef.attitude.evaluate` — RMS against a reference, constant yaw offset between two series.
+* :mod:`georef.attitude.compare` — RMS against a reference, constant yaw offset between two series.
 
 Frames follow georef: body FRD, navigation NED, ``C_b_n`` body-to-NED, Hamilton scalar-first quaternions.
 """

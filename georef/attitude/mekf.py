@@ -18,6 +18,7 @@ import math
 import numpy as np
 from numba import njit
 
+from georef.aot import load as load_kernel
 from georef.attitude.tilt import accel_tilt
 from georef.frames import STANDARD_GRAVITY, dcm_to_quat, euler_to_dcm
 from georef.frames import quat_to_dcm as quats_to_dcm
@@ -28,7 +29,6 @@ from georef.frames.kernels import (
     quat_normalise,
     quat_to_dcm,
 )
-from georef.kernels import load as load_kernel
 
 #: the specific-force magnitude [m/s^2] an unaccelerated IMU reads, against which the accelerometer gate is set
 GRAVITY = STANDARD_GRAVITY

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from georef.aot import load as load_kernel
 from georef.attitude.mekf import run_mekf
 from georef.attitude.tilt import accel_tilt
 from georef.attitude.ukf import run_ukf
 from georef.frames import dcm_to_euler, wrap_360
-from georef.kernels import load as load_kernel
 
 METHODS = ("complementary", "kf", "mekf", "ukf")
 

@@ -14,10 +14,10 @@ import math
 import numpy as np
 from numba import njit
 
+from georef.aot import load as load_kernel
 from georef.attitude.mekf import DOWN, GRAVITY, initial_state
 from georef.frames import quat_to_dcm as quats_to_dcm
 from georef.frames.kernels import quat_from_rotvec, quat_mul, quat_normalise, quat_to_dcm, quat_to_rotvec
-from georef.kernels import load as load_kernel
 
 L = 6
 

@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from georef.align import GnssEpochs
 from georef.frames import C_e_n, C_n_e, ecef_to_geodetic, geodetic_to_ecef
+from georef.timing import GnssEpochs
 
 #: Karlsruhe, where the KITTI sequences were recorded: latitude, longitude [deg], ellipsoidal height [m]
 KITTI_ORIGIN = (49.0108, 8.4241, 115.0)

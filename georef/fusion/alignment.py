@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from georef.aot import load as load_kernel
 from georef.distributions import f_sf
 from georef.frames import (
     C_e_n,
@@ -51,7 +52,6 @@ from georef.frames import (
 from georef.frames.mounting import lever_arm_offset
 from georef.frames.rotations import rotvec_to_dcm
 from georef.fusion import ins_layout as layout
-from georef.kernels import load as load_kernel
 
 #: a heading known to better than this [rad] somewhere in the window ends the search
 HEADING_SIGMA_OK = np.radians(2.0)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from georef.aot import load as load_kernel
 from georef.config import AxisSettings, ProcessingConfig
 from georef.frames import C_e_n, C_n_e, ecef_to_geodetic, euler_to_dcm, geodetic_to_ecef, wrap_pi
 from georef.frames.mounting import lever_arm_ecef
@@ -26,7 +27,6 @@ from georef.fusion.yaw_offset import recover_yaw_offset
 from georef.imu_errors import white_noise_sigma
 from georef.io.errors import GeorefError
 from georef.io.pos import PosLog
-from georef.kernels import load as load_kernel
 
 REQUIRED_ROLES = ("iacc_x", "iacc_y", "iacc_z", "roll", "pitch", "yaw")
 MAX_CONSECUTIVE_REJECTS = 5

@@ -64,9 +64,9 @@ from georef.fusion.solution import GraphCalibration, GraphInfo, NavSolution, Sca
 if TYPE_CHECKING:  # gtsam is imported where it is used; importing this module needs no gtsam
     import gtsam
 
-    from georef.align import GnssEpochs
     from georef.fusion.noise import NoiseModel
     from georef.io.pos import PosLog
+    from georef.timing import GnssEpochs
 
 #: a gtsam.symbol_shorthand key function, e.g. ``X``: keyframe index -> key
 Symbol = Callable[[int], int]

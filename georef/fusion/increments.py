@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from georef.kernels import load as load_kernel
+from georef.aot import load as load_kernel
 
 
 def compensated_rates(time: np.ndarray, gyro: np.ndarray, accel: np.ndarray, gyro_bias: np.ndarray,

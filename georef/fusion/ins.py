@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from georef.align import GnssEpochs
+from georef.aot import load as load_kernel
 from georef.config import InsSettings, ProcessingConfig, UnitSection
 from georef.frames import (
     STANDARD_GRAVITY,
@@ -78,7 +78,7 @@ from georef.fusion.start import (
     still_rows,
 )
 from georef.io.errors import GeorefError
-from georef.kernels import load as load_kernel
+from georef.timing import GnssEpochs
 
 if TYPE_CHECKING:
     from georef.io.pos import PosLog

@@ -38,9 +38,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from georef.aot import load as load_kernel
 from georef.frames import C_e_n, euler_to_dcm, geodetic_to_ecef, wrap_pi
 from georef.frames.mounting import lever_arm_offset
-from georef.kernels import load as load_kernel
 
 HUBER_K = 1.5
 

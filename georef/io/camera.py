@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from georef.align import SECONDS_PER_DAY
 from georef.io.errors import InputError, InputNotice, excerpt
 from georef.io.table import Source, Table, peek_header, read_table, snapshot, source_path
+from georef.timing import SECONDS_PER_DAY
 
 #: role -> default header name
 CAMERA_ROLES: dict[str, str] = {"number": "Number", "time": "Time", "milliseconds": "Milliseconds"}

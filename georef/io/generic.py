@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from georef.align import GnssEpochs, check_increasing
 from georef.frames import wrap_360
 from georef.fusion.solution import NavSolution
 from georef.io.atomic import atomic_write
@@ -30,6 +29,7 @@ from georef.io.errors import InputError
 from georef.io.plausibility import GENERIC_LIMITS, check_gnss_jumps, check_ranges
 from georef.io.pos import PosLog
 from georef.io.table import Table, read_table
+from georef.timing import GnssEpochs, check_increasing
 
 IMU_COLUMNS = ("time", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
 GNSS_COLUMNS = ("time", "lat", "lon", "height")
@@ -95,8 +95,8 @@ def read_generic_log(imu_path: Path | str, gnss_path: Path | str, time_scale: st
     POS.txt's units, deg/s and m/s^2), with the magnetometer and the autopilot's roll, pitch, yaw on the rows when
     imu.csv has them. imu.csv is read once. An RTKLIB/Emlid .pos as ``gnss_path`` is put on imu.csv's time scale:
     ``time_scale`` (:data:`georef.io.pos_time_scale.CHOICES`; ``auto`` detects it from imu.csv's span)."""
-    from georef.align import TimeRepairReport
     from georef.io.pos_time_scale import is_solution_file, read_gnss_on_imu_scale
+    from georef.timing import TimeRepairReport
 
     table = _imu_table(imu_path, (*IMU_COLUMNS, *MAG_COLUMNS, "roll", "pitch", AUTOPILOT_YAW))
     c = table.columns

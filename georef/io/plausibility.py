@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from georef.align import GnssEpochs
 from georef.io.errors import InputError, InputNotice
+from georef.timing import GnssEpochs
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from georef.align import (
+from georef.io.errors import InputError, InputNotice
+from georef.io.plausibility import check_gnss_jumps, check_ranges, repair_spikes
+from georef.io.table import Dialect, Kind, read_table
+from georef.timing import (
     GnssEpochs,
     TimeRepairReport,
     check_gnss_time_consistency,
@@ -21,9 +24,6 @@ from georef.align import (
     extract_gnss_epochs,
     pos_sample_times,
 )
-from georef.io.errors import InputError, InputNotice
-from georef.io.plausibility import check_gnss_jumps, check_ranges, repair_spikes
-from georef.io.table import Dialect, Kind, read_table
 
 #: Role -> (default header name, kind). Units: ACCS/IACC m/s^2, OMGS/IOMG deg/s, angles deg,
 #: TRIG_TIME s x 100, SAMPL_TIME us, LAT/LON deg, ALTITUDE m (ellipsoidal), VELOCITY m/s.

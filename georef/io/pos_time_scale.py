@@ -45,9 +45,9 @@ from georef.io.rtklib import (
 )
 
 if TYPE_CHECKING:
-    from georef.align import GnssEpochs
     from georef.io.camera import Exposures
     from georef.io.image_names import ImageNames
+    from georef.timing import GnssEpochs
 
 #: the scales, by their command-line names, and the name :func:`georef.io.rtklib.solution_times` takes
 SCALES: dict[str, str] = {"utc-day": "utc-day", "gps-week": "gps-week", "unix": "utc-posix"}

@@ -33,12 +33,12 @@ from typing import Any
 
 import numpy as np
 
-from georef.align import GnssEpochs, TimeRepairReport
 from georef.frames.position_covariance import enu_to_ned_covariance
 from georef.frames.ros import flu_to_frd, stamp_to_seconds
 from georef.io.errors import InputError, InputNotice
 from georef.io.plausibility import GENERIC_LIMITS, check_gnss_jumps, check_ranges
 from georef.io.pos import PosLog
+from georef.timing import GnssEpochs, TimeRepairReport
 
 IMU_TYPE = "sensor_msgs/msg/Imu"
 GNSS_TYPE = "sensor_msgs/msg/NavSatFix"

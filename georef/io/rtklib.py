@@ -35,7 +35,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from georef.align import GnssEpochs, check_increasing
 from georef.frames.earth import ecef_to_geodetic
 from georef.frames.gpstime import (
     GPS_EPOCH,
@@ -58,6 +57,7 @@ from georef.frames.position_covariance import (
     with_sigma_floor,
 )
 from georef.io.errors import InputError, InputNotice, excerpt
+from georef.timing import GnssEpochs, check_increasing
 
 if TYPE_CHECKING:
     from georef.io.camera import Exposures

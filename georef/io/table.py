@@ -998,9 +998,9 @@ _KERNEL_KINDS = {"float": 0, "int": 0, "hex": 1, "str": 2}  # georef.io.table_ke
 
 @functools.cache
 def _table_kernel() -> Callable:
-    from georef import kernels
+    from georef import aot
 
-    return kernels.load("table").parse_block
+    return aot.load("table").parse_block
 
 
 def _parse_clean(layout: _Layout, kinds: dict[int, Kind]) -> tuple[dict[int, np.ndarray], int] | None:

@@ -29,7 +29,6 @@ from pathlib import Path
 
 import numpy as np
 
-from georef.align import GnssEpochs
 from georef.frames.gpstime import gps_week_to_utc, leap_seconds_note, utc_day_start
 from georef.io.camera import FEEDBACK_TIME_SIGMA, TRIGGER_TIME_SIGMA, Exposures
 from georef.io.errors import InputError, InputNotice, excerpt
@@ -48,6 +47,7 @@ from georef.io.logs.flightlog import (
     whole_numbers,
 )
 from georef.io.logs.gnss_heights import ellipsoidal_heights
+from georef.timing import GnssEpochs
 
 WANTED = ("IMU", "IMU2", "IMU3", "GPS", "GPS2", "GPA", "UBX3", "ATT", "AHR2", "MAG", "CAM", "TRIG", "PARM", "MSG",
           "VER")

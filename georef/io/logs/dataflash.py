@@ -142,7 +142,7 @@ def _binary_table(data: np.ndarray, fmt: MessageFormat, offsets: np.ndarray) -> 
 
 def read_binary(path: Path, data: bytes, wanted: Iterable[str]) -> DataFlashLog:
     """The wanted message types of a binary DataFlash log held in ``data``."""
-    from georef.kernels import load as load_kernel
+    from georef.aot import load as load_kernel
 
     buffer = np.frombuffer(data, dtype=np.uint8)
     lengths = np.zeros(256, dtype=np.int64)

@@ -14,12 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from georef.align import GnssEpochs, TimeRepairReport
 from georef.frames.rotations import wrap_pi
 from georef.io.camera import Exposures
 from georef.io.errors import InputNotice, excerpt
 from georef.io.logs.clock import ClockFit
 from georef.io.pos import PosLog
+from georef.timing import GnssEpochs, TimeRepairReport
 
 
 @dataclass

@@ -28,7 +28,6 @@ from pathlib import Path
 
 import numpy as np
 
-from georef.align import GnssEpochs
 from georef.frames import dcm_to_euler, quat_to_dcm
 from georef.frames.gpstime import utc_day_start
 from georef.io.camera import FEEDBACK_TIME_SIGMA, TRIGGER_TIME_SIGMA, Exposures
@@ -47,6 +46,7 @@ from georef.io.logs.flightlog import (
     whole_numbers,
 )
 from georef.io.logs.gnss_heights import ellipsoidal_heights
+from georef.timing import GnssEpochs
 
 TOPICS = ["sensor_combined", "vehicle_imu", "vehicle_gps_position", "sensor_gps", "vehicle_attitude",
           "vehicle_magnetometer", "sensor_mag", "camera_capture", "camera_trigger"]

@@ -24,8 +24,8 @@ PX4_TOPICS = ["sensor_combined", "vehicle_gps_position", "vehicle_attitude", "ve
 
 
 def trim_dataflash(source: Path, target: Path) -> None:
+    from georef.aot import load as load_kernel
     from georef.io.logs.dataflash import read_binary
-    from georef.kernels import load as load_kernel
 
     data = source.read_bytes()
     buffer = np.frombuffer(data, dtype=np.uint8)

@@ -1,4 +1,4 @@
-"""Ahead-of-time kernels (georef.kernels): same numbers as the JIT, never stale, arguments guarded.
+"""Ahead-of-time kernels (georef.aot): same numbers as the JIT, never stale, arguments guarded.
 
 No test writes into the source package: builds go to temporary directories (``GEOREF_KERNEL_DIR``), or into a
 copy of the package.
@@ -21,16 +21,16 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from georef import kernels
+from georef import aot
 from georef.config import load_config
 from georef.pipeline import process
 
-DATA = kernels.PACKAGE_DIR.parent / "data"
+DATA = aot.PACKAGE_DIR.parent / "data"
 
 
 def _environment(**changes: str | None) -> dict[str, str]:
     env = {key: value for key, value in os.environ.items()
-           if key not in ("GEOREF_KERNELS", kernels.DIR_VARIABLE, "NUMBA_DISABLE_JIT")}
+           if key not in ("GEOREF_KERNELS", aot.DIR_VARIABLE, "NUMBA_DISABLE_JIT")}
     env["OPENBLAS_NUM_THREADS"] = "1"
     env.update({key: value for key, value in changes.items() if value is not None})
     return env
@@ -43,16 +43,16 @@ def built(tmp_path_factory) -> Path:
     A current build in the package (``make`` writes them) is copied; a missing one is compiled there.
     """
     directory = tmp_path_factory.mktemp("kernels")
-    for name in kernels.KERNELS:
-        module_name = kernels.aot_module_name(name)
-        found = list(kernels.PACKAGE_DIR.glob(f"{module_name}.*"))
+    for name in aot.KERNELS:
+        module_name = aot.aot_module_name(name)
+        found = list(aot.PACKAGE_DIR.glob(f"{module_name}.*"))
         if any(path.suffix != ".json" for path in found):
             for path in found:
                 shutil.copy2(path, directory / path.name)
         else:
-            kernels.build(name, directory)
+            aot.build(name, directory)
     with pytest.MonkeyPatch.context() as patch:
-        patch.setenv(kernels.DIR_VARIABLE, str(directory))
+        patch.setenv(aot.DIR_VARIABLE, str(directory))
         yield directory
 
 
@@ -64,7 +64,7 @@ def test_aot_and_jit_give_identical_tables(built, monkeypatch, method):
     for mode in ("aot", "jit"):
         monkeypatch.setenv("GEOREF_KERNELS", mode)
         tables[mode] = process(DATA / "POS.txt", DATA / "Kamera.txt", cfg).table
-        assert kernels.LOADED["axis" if method == "axis" else "ins"] == mode
+        assert aot.LOADED["axis" if method == "axis" else "ins"] == mode
     pd.testing.assert_frame_equal(tables["aot"], tables["jit"], check_exact=True)
 
 
@@ -99,7 +99,7 @@ def test_attitude_kernels_match_interpreted_python(built, tmp_path):
     script = tmp_path / "attitude.py"
     script.write_text(_ATTITUDE_SCRIPT)
     outputs = {}
-    for mode, extra in (("aot", {kernels.DIR_VARIABLE: str(built)}), ("python", {"NUMBA_DISABLE_JIT": "1"})):
+    for mode, extra in (("aot", {aot.DIR_VARIABLE: str(built)}), ("python", {"NUMBA_DISABLE_JIT": "1"})):
         env = _environment(GEOREF_KERNELS="aot" if mode == "aot" else "jit", **extra)
         subprocess.run([sys.executable, str(script), str(tmp_path / f"{mode}.npz"), *methods], env=env,
                        check=True, capture_output=True, text=True)
@@ -118,14 +118,14 @@ def test_attitude_kernels_match_interpreted_python(built, tmp_path):
 def test_unknown_mode_is_refused(monkeypatch):
     monkeypatch.setenv("GEOREF_KERNELS", "fast")
     with pytest.raises(ValueError, match="auto, aot or jit"):
-        kernels.load("ins")
+        aot.load("ins")
 
 
 @pytest.mark.parametrize("mode", ["aot", "jit"])
 def test_arguments_are_converted_or_refused(built, monkeypatch, mode):
     """A strided float32 view must give what the contiguous float64 array gives; a wrong rank is refused."""
     monkeypatch.setenv("GEOREF_KERNELS", mode)
-    axis_filter = kernels.load("axis").axis_filter
+    axis_filter = aot.load("axis").axis_filter
     rng = np.random.default_rng(3)
     t_imu = np.arange(0.0, 20.0, 0.02)
     acc = rng.normal(0.0, 0.1, (len(t_imu), 3))
@@ -148,12 +148,12 @@ def test_arguments_are_converted_or_refused(built, monkeypatch, mode):
 def test_default_path_does_not_import_numba(built):
     """The point of the build: `georef process --method rts` loads no numba (0.55 s of start-up)."""
     code = ("import sys; from georef.config import load_config; from georef.pipeline import process; "
-            "from georef import kernels; "
+            "from georef import aot; "
             f"process({str(DATA / 'POS.txt')!r}, {str(DATA / 'Kamera.txt')!r}, "
             f"load_config({str(DATA / 'flight.toml')!r})); "
-            "print(kernels.LOADED['ins'], 'numba' in sys.modules)")
+            "print(aot.LOADED['ins'], 'numba' in sys.modules)")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                            env=_environment(**{kernels.DIR_VARIABLE: str(built)}))
+                            env=_environment(**{aot.DIR_VARIABLE: str(built)}))
     assert result.stdout.split() == ["aot", "False"]
 
 
@@ -169,14 +169,14 @@ def _statement_keys(statements) -> set[tuple]:
 def test_import_scan_sees_every_import_statement_of_the_package():
     """The loader reads only the lines that start an import; a full parse of every georef file must find no
     import statement it missed (one after ``:`` or ``;`` on a line would be)."""
-    files = sorted(kernels.PACKAGE_DIR.rglob("*.py"))
+    files = sorted(aot.PACKAGE_DIR.rglob("*.py"))
     assert len(files) > 40
     for path in files:
         source = path.read_text(encoding="utf-8")
         full = _statement_keys(node for node in ast.walk(ast.parse(source))
                                if isinstance(node, ast.Import | ast.ImportFrom))
-        missed = full - _statement_keys(kernels.import_statements(source))
-        assert not missed, f"{path}: import statements not seen by kernels.import_statements: {sorted(missed)}"
+        missed = full - _statement_keys(aot.import_statements(source))
+        assert not missed, f"{path}: import statements not seen by aot.import_statements: {sorted(missed)}"
 
 
 def test_import_closure_resolves_relative_nested_and_continued_imports(tmp_path):
@@ -203,7 +203,7 @@ def test_import_closure_resolves_relative_nested_and_continued_imports(tmp_path)
     for relative, text in files.items():
         (root / relative).parent.mkdir(parents=True, exist_ok=True)
         (root / relative).write_text(text)
-    assert kernels.import_closure("georef.kern.main", root) == (
+    assert aot.import_closure("georef.kern.main", root) == (
         "consts.py", "kern/__init__.py", "kern/helper.py", "kern/main.py", "kern/sub/__init__.py",
         "kern/sub/deep.py", "kern/sub/leaf.py", "lazy.py")
 
@@ -216,29 +216,29 @@ def test_import_closure_covers_what_python_imports():
             "if (n == 'georef' or n.startswith('georef.')) and getattr(m, '__file__', None)))")
     runs = {name: subprocess.Popen([sys.executable, "-c", code, spec.jit_module], stdout=subprocess.PIPE,
                                    text=True, env=_environment())
-            for name, spec in kernels.KERNELS.items()}
+            for name, spec in aot.KERNELS.items()}
     for name, run in runs.items():
         stdout, _ = run.communicate(timeout=300)
         assert run.returncode == 0, name
-        imported = {Path(line).resolve().relative_to(kernels.PACKAGE_DIR).as_posix() for line in stdout.split()}
-        closure = set(kernels.import_closure(kernels.KERNELS[name].jit_module))
+        imported = {Path(line).resolve().relative_to(aot.PACKAGE_DIR).as_posix() for line in stdout.split()}
+        closure = set(aot.import_closure(aot.KERNELS[name].jit_module))
         assert imported, name
         assert imported <= closure, f"{name}: imported but not hashed: {sorted(imported - closure)}"
-    assert "frames/earth.py" in kernels.import_closure("georef.fusion.ins_kernel")
+    assert "frames/earth.py" in aot.import_closure("georef.fusion.ins_kernel")
 
 
 def test_hash_covers_toolchain(monkeypatch):
     """Another numba, numpy or Python gives another module name, so a build made with the old one is unused."""
-    before = kernels.aot_module_name("axis")
-    installed = kernels.toolchain()
+    before = aot.aot_module_name("axis")
+    installed = aot.toolchain()
     for key, value in (("numba", "0.0.1"), ("numpy", "0.0.1"), ("python", "cpython 3.0.0"), ("platform", "x")):
         assert installed[key] != value
-        kernels.build_inputs.cache_clear()
-        monkeypatch.setattr(kernels, "toolchain", lambda key=key, value=value: {**installed, key: value})
-        assert kernels.aot_module_name("axis") != before, key
+        aot.build_inputs.cache_clear()
+        monkeypatch.setattr(aot, "toolchain", lambda key=key, value=value: {**installed, key: value})
+        assert aot.aot_module_name("axis") != before, key
     monkeypatch.undo()
-    kernels.build_inputs.cache_clear()
-    assert kernels.aot_module_name("axis") == before
+    aot.build_inputs.cache_clear()
+    assert aot.aot_module_name("axis") == before
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -247,18 +247,18 @@ def test_hash_covers_toolchain(monkeypatch):
 
 _LOAD_SCRIPT = """
 import json, os, sys
-from georef import kernels
-assert str(kernels.PACKAGE_DIR) == sys.argv[1], kernels.PACKAGE_DIR
-result = {"module": kernels.aot_module_name("align")}
+from georef import aot
+assert str(aot.PACKAGE_DIR) == sys.argv[1], aot.PACKAGE_DIR
+result = {"module": aot.aot_module_name("align")}
 os.environ["GEOREF_KERNELS"] = "auto"
-kernels.load("align")
-result["auto"] = kernels.LOADED["align"]
-result["fallback"] = kernels.FALLBACK.get("align")
+aot.load("align")
+result["auto"] = aot.LOADED["align"]
+result["fallback"] = aot.FALLBACK.get("align")
 result["numba imported"] = "numba" in sys.modules
 os.environ["GEOREF_KERNELS"] = "aot"
 try:
-    kernels.load("align")
-    result["aot"] = kernels.LOADED["align"]
+    aot.load("align")
+    result["aot"] = aot.LOADED["align"]
 except ImportError as exc:
     result["aot"] = "ImportError: " + str(exc)
 print(json.dumps(result))
@@ -272,7 +272,7 @@ def test_build_made_stale_by_an_indirect_import_is_refused(tmp_path):
     stale file and the edited one. A leftover build of an older georef (no record) is named, then removed."""
     started = time.perf_counter()
     package = tmp_path / "georef"
-    shutil.copytree(kernels.PACKAGE_DIR, package, ignore=shutil.ignore_patterns("_aot_*", "__pycache__"))
+    shutil.copytree(aot.PACKAGE_DIR, package, ignore=shutil.ignore_patterns("_aot_*", "__pycache__"))
     suffix = importlib.machinery.EXTENSION_SUFFIXES[0]
     leftover = package / f"_aot_align_0123456789ab{suffix}"
     leftover.write_bytes(b"not a module")
@@ -290,8 +290,8 @@ def test_build_made_stale_by_an_indirect_import_is_refused(tmp_path):
     assert before["auto"] == "jit"
     assert leftover.name in before["aot"] and "no readable record" in before["aot"]
 
-    build = json.loads(run("-c", "import json; from georef import kernels; "
-                               "print(json.dumps(kernels.build('align').notices))").stdout)
+    build = json.loads(run("-c", "import json; from georef import aot; "
+                               "print(json.dumps(aot.build('align').notices))").stdout)
     assert any("'pycc' module is pending deprecation" in notice for notice in build)  # shown, not filtered
     built = sorted(path.name for path in package.iterdir() if path.name.startswith(("_aot_", ".")))
     assert built == sorted([f"{before['module']}.json", f"{before['module']}{suffix}"])  # leftover, scratch gone
@@ -317,13 +317,13 @@ def test_build_kernels_without_pycc_is_a_user_error(tmp_path, monkeypatch):
     from georef_cli.main import app
     from typer.testing import CliRunner
 
-    monkeypatch.setenv(kernels.DIR_VARIABLE, str(tmp_path))  # nothing built there: every kernel needs pycc
+    monkeypatch.setenv(aot.DIR_VARIABLE, str(tmp_path))  # nothing built there: every kernel needs pycc
     monkeypatch.setitem(sys.modules, "numba.pycc", None)  # makes `from numba.pycc import CC` raise ImportError
-    kernels._pycc.cache_clear()
+    aot._pycc.cache_clear()
     try:
         result = CliRunner().invoke(app, ["build-kernels"])
     finally:
-        kernels._pycc.cache_clear()
+        aot._pycc.cache_clear()
     assert result.exit_code == 2, result.output
     assert "cannot compile ahead of time" in result.output and "numba range" in result.output
     assert not list(tmp_path.iterdir())

@@ -188,7 +188,7 @@ def import_statements(source: str) -> list[ast.Import | ast.ImportFrom]:
     Only the lines that begin such a statement (and their bracketed or backslashed continuation) are parsed,
     1 ms against 67 ms for parsing the eight files of the "ins" kernel whole, which every run would pay. A
     docstring line that happens to read like an import is parsed too; it can only add a file to the closure.
-    Statements that do not begin a line (``if x: import y``) are not seen: tests/test_kernels.py checks that
+    Statements that do not begin a line (``if x: import y``) are not seen: tests/test_aot.py checks that
     the package has none, against a full :func:`ast.parse` of every file.
     """
     lines = source.splitlines()
@@ -479,7 +479,7 @@ def _pycc() -> tuple[type, tuple[str, ...]]:
             from numba.pycc import CC
         except ImportError as exc:
             raise BuildUnavailableError(f"numba {toolchain()['numba']} cannot compile ahead of time ({exc}); install "
-                                   "the numba range pyproject.toml names (docs/kernels.md). georef runs its "
+                                   "the numba range pyproject.toml names (docs/aot.md). georef runs its "
                                    "kernels through numba's JIT meanwhile.") from exc
     notices = []
     for warning in caught:
