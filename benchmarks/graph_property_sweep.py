@@ -5,7 +5,7 @@ GNSS outages (some at the very start or running past the end, some long) and zer
 simulates it with ``georef simulate`` and runs ``georef process --method graph`` on POS.txt/Kamera.txt, or
 ``georef fuse --method graph`` on the generic imu.csv/gnss.csv (one case in three). Exit 0 and 4 are fine,
 2 must name genuinely invalid input (printed for review), 3 is a bug. The same cases are drawn for the same
-``--seed``. ``tests/test_graph_properties.py`` runs a few of the same kind in CI.
+``--seed``. ``tests/fusion/test_graph_properties.py`` runs a few of the same kind in CI.
 
 Usage: python benchmarks/graph_property_sweep.py [--cases 60] [--workers 2] [--seed 0] [--keep DIR]
 """

@@ -1,6 +1,6 @@
 """Horizontal RMS at the frames, `--method graph` against `--method rts`, on the simulated 3-minute helicopter
-flights of ``tests/test_graph.py`` (``SimConfig(seed=...)``, 1-m fixes, with the test's three GNSS outliers unless
-``--clean``). Prints each seed's two figures and their ratio, then the mean ratio and how many flights are within
+flights of ``tests/fusion/test_graph.py`` (``SimConfig(seed=...)``, 1-m fixes, with the test's three GNSS outliers
+unless ``--clean``). Prints each seed's two figures and their ratio, then the mean ratio and how many flights are within
 the + 5 % target.
 
 The options reproduce the diagnosis in ``docs/method-graph.md`` (Measured): ``--hold-calibration`` gives the graph
@@ -31,7 +31,7 @@ from georef.sim.files import processing_config_for, write_flight
 from georef.sim.flight import SimConfig, simulate
 from georef.sim.sensors import GnssModel
 
-#: the outliers of tests/test_graph.py: (time from the start [s], size [m])
+#: the outliers of tests/fusion/test_graph.py: (time from the start [s], size [m])
 OUTLIERS = [(30.0, 25.0), (55.0, 40.0), (140.0, 20.0)]
 TARGET = 1.05
 #: ``--taped``: the installation's errors, drawn with the graph's default prior sigmas [m per axis, s]

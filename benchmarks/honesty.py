@@ -11,15 +11,15 @@ normalised error z = error / sigma. The kinds, each made and processed as the te
   in Python so that a checkout without those options runs it too;
 * ``multicopter-consumer``: ``SimConfig.for_vehicle("multicopter", 180, S)`` processed with
   ``processing_config_for`` (its true IMU preset, ``mems-consumer``; docs/method-ins.md section 9, known limits);
-* ``outage40``: the 40-s outage flights of tests/test_ins.py (outage 80-120 s, outliers at 30, 55 and 140 s);
+* ``outage40``: the 40-s outage flights of tests/fusion/test_ins.py (outage 80-120 s, outliers at 30, 55 and 140 s);
 * ``phone-helicopter``, ``phone-multicopter``, ``phone-car``: benchmarks/robustness.py's phone IMU (consumer-phone
   preset, 0.07 rad/s z gyro bias);
-* ``rotor``, ``white``, ``narrowband``: tests/test_ins.py's ``sim_of`` (white and narrow-band at 0.5, 1 and 2 x
+* ``rotor``, ``white``, ``narrowband``: tests/fusion/test_ins.py's ``sim_of`` (white and narrow-band at 0.5, 1 and 2 x
   their reference level, cycled by seed).
 
 All but ``multicopter-consumer`` are processed with ``installation_config`` (lever arms, boresight, GNSS rate
 only: the IMU preset, GNSS sigma and unit errors stay at georef's defaults whatever the simulator drew), as
-tests/test_ins.py and benchmarks/robustness.py do; ``--processing`` overrides that for every kind.
+tests/fusion/test_ins.py and benchmarks/robustness.py do; ``--processing`` overrides that for every kind.
 
 Per kind it prints the pooled share of frame errors inside 2 sigma per component (target 88-98 %), the share of
 (flight, component) pairs with rms(z) > 3 (target <= 2 %), the QC failures (``georef process`` exit code 4;
@@ -59,7 +59,7 @@ import numpy as np  # noqa: E402
 COMPONENTS = ("north", "east", "up", "roll", "pitch", "yaw")
 SIGMAS = ("sigma_n", "sigma_e", "sigma_u", "sigma_roll", "sigma_pitch", "sigma_yaw")
 FIGURES = ("horizontal_rms_m", "vertical_rms_m", "roll_rms_deg", "pitch_rms_deg", "yaw_rms_deg")
-#: white and narrow-band vibration levels (x the kind's reference), cycled by seed as in tests/test_ins.py
+#: white and narrow-band vibration levels (x the kind's reference), cycled by seed as in tests/fusion/test_ins.py
 LEVELS = (0.5, 1.0, 2.0)
 #: benchmarks/robustness.py's phone IMU
 PHONE = {"imu_preset": "consumer-phone", "gyro_bias_rad_s": (0.0, 0.0, 0.07)}
@@ -108,14 +108,14 @@ def sim_config(kind: str, seed: int) -> Any:
         return _helicopter_cli(seed, 180.0, gnss_sigma=(3.0, 3.0, 5.0), unit_yaw_drift_deg_h=4.0)
     if kind == "multicopter-consumer":
         return SimConfig.for_vehicle("multicopter", 180, seed)
-    if kind == "outage40":  # tests/test_ins.py outage_flights
+    if kind == "outage40":  # tests/fusion/test_ins.py outage_flights
         return SimConfig(seed=seed, gnss=GnssModel(outages=[(80.0, 40.0)],
                                                    outliers=[(30.0, 25.0), (55.0, 40.0), (140.0, 20.0)]))
     if kind.startswith("phone-"):  # benchmarks/robustness.py _sim("phone:<vehicle>")
         vehicle = kind.removeprefix("phone-")
         return SimConfig(seed=seed, unit=None, **PHONE) if vehicle == "helicopter" else \
             SimConfig.for_vehicle(vehicle, 180, seed, **PHONE)
-    if kind == "rotor":  # tests/test_ins.py sim_of
+    if kind == "rotor":  # tests/fusion/test_ins.py sim_of
         return SimConfig(seed=seed)
     if kind in ("white", "narrowband"):
         return SimConfig(seed=seed, vibration=VibrationModel.of_kind(kind, LEVELS[seed % len(LEVELS)]))

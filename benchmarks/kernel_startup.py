@@ -15,6 +15,17 @@ georef.aot are imported, and is the median (and best) of ``--runs`` processes:
 (d) ``georef build-kernels`` with every kernel up to date (run by every ``make``).
 
 Needs the builds (``georef build-kernels``) for (a); (b) uses a temporary NUMBA_CACHE_DIR.
+
+With ``--process`` it also times whole ``georef process`` runs in fresh processes, on the bundled flight and on
+every ``--flight DIR`` (holding POS.txt, Kamera.txt, flight.toml), alternating between: the ahead-of-time builds
+(``GEOREF_KERNELS=aot``); numba's on-disk cache warm (``GEOREF_KERNELS=jit``, a NUMBA_CACHE_DIR the first cold
+run filled); and the cache cold (an empty NUMBA_CACHE_DIR each run: the compile a new install pays once).
+With ``--build-runs N`` it times, alternating, ``georef build-kernels`` into an empty GEOREF_KERNEL_DIR (what
+``make test`` pays on a fresh clone) and filling an empty numba cache with every kernel function the build
+exports, one after the other in one process. Each is wall time and CPU time (user + sys of the process and its
+children); CPU time is the steadier figure on a shared machine.
+
+    python benchmarks/kernel_startup.py --process --flight DIR --runs 5 --cold-runs 5 --build-runs 5
 """
 
 from __future__ import annotations
@@ -22,12 +33,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import shutil
 import statistics
 import subprocess
 import sys
 import sysconfig
 import tempfile
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -122,12 +135,87 @@ def _compile_probe(directory: Path) -> bool:
     return subprocess.run(command, capture_output=True).returncode == 0
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--runs", type=int, default=5)
-    runs = parser.parse_args().runs
-    base = {key: value for key, value in os.environ.items() if key not in ("GEOREF_KERNELS", "NUMBA_DISABLE_JIT")}
-    base["OPENBLAS_NUM_THREADS"] = "1"
+_POPULATE_SCRIPT = """
+from numba.core.sigutils import normalize_signature
+import importlib
+from georef import aot
+for spec in aot.KERNELS.values():
+    module = importlib.import_module(spec.jit_module)
+    for function, interface in spec.functions.items():
+        arguments, _ = normalize_signature(interface.numba_signature())
+        getattr(module, function).compile(tuple(arguments))  # the key a call with these types looks up
+"""
+
+
+def _timed(command: list[str], env: dict[str, str], label: str) -> tuple[float, float]:
+    """Wall time and CPU time (user + sys, with every child it waited for) of ``command``, in seconds; each run
+    is printed as it ends (the compile-bound ones take minutes on a loaded machine)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    started = time.perf_counter()
+    done = subprocess.run(command, env=env, capture_output=True, text=True, cwd=ROOT)
+    wall = time.perf_counter() - started
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if done.returncode != 0:
+        raise SystemExit(f"{' '.join(command)} failed:\n{done.stdout}\n{done.stderr}")
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    print(f"  {label}: wall {wall:.2f} s, CPU {cpu:.2f} s, load average {os.getloadavg()[0]:.1f}", flush=True)
+    return wall, cpu
+
+
+def _report(label: str, times: list[tuple[float, float]]) -> None:
+    walls, cpus = [wall for wall, _ in times], [cpu for _, cpu in times]
+    print(f"{label}: wall {statistics.median(walls):.2f} s (best {min(walls):.2f}), "
+          f"CPU {statistics.median(cpus):.2f} s (best {min(cpus):.2f}), {len(times)} runs", flush=True)
+
+
+def _tree_env(base: dict[str, str]) -> dict[str, str]:
+    """``base`` running the georef of this checkout (ROOT), whatever is installed."""
+    return {**base, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "cli")])}
+
+
+def _process_runs(flights: list[Path], runs: int, cold_runs: int, base: dict[str, str], scratch: Path) -> None:
+    """``georef process`` per flight, fresh processes, alternating: builds, warm cache, cold cache."""
+    env = _tree_env(base)
+    for flight in flights:
+        output = scratch / f"{flight.name}-eo.csv"
+        command = [sys.executable, "-m", "georef_cli.main", "process", str(flight / "POS.txt"),
+                   str(flight / "Kamera.txt"), "--config", str(flight / "flight.toml"), "-o", str(output), "-q"]
+        warm = {**env, "GEOREF_KERNELS": "jit", "NUMBA_CACHE_DIR": str(scratch / f"warm-cache-{flight.name}")}
+        first = _timed(command, warm, f"{flight.name} cold")  # fills the warm cache: the first cold run
+        times: dict[str, list[tuple[float, float]]] = {"aot": [], "warm": [], "cold": [first]}
+        for run in range(1, max(runs + 1, cold_runs)):
+            if run <= runs:
+                times["aot"].append(_timed(command, {**env, "GEOREF_KERNELS": "aot"}, f"{flight.name} aot"))
+                times["warm"].append(_timed(command, warm, f"{flight.name} warm"))
+            if run < cold_runs:
+                cold = scratch / f"cold-cache-{flight.name}-{run}"
+                cold_env = {**env, "GEOREF_KERNELS": "jit", "NUMBA_CACHE_DIR": str(cold)}
+                times["cold"].append(_timed(command, cold_env, f"{flight.name} cold"))
+                shutil.rmtree(cold, ignore_errors=True)
+        label = f"georef process, {flight.name}"
+        _report(f"{label}, ahead-of-time builds", times["aot"])
+        _report(f"{label}, numba cache warm", times["warm"])
+        if times["cold"]:
+            _report(f"{label}, numba cache cold (compiles)", times["cold"])
+
+
+def _build_runs(runs: int, base: dict[str, str], scratch: Path) -> None:
+    """``georef build-kernels`` from nothing against filling an empty numba cache with the same functions."""
+    env = _tree_env(base)
+    builds, fills = [], []
+    for run in range(runs):
+        directory, cache = scratch / f"build-{run}", scratch / f"fill-cache-{run}"
+        builds.append(_timed([sys.executable, "-m", "georef_cli.main", "build-kernels", "-q"],
+                             {**env, "GEOREF_KERNEL_DIR": str(directory)}, "build-kernels"))
+        fills.append(_timed([sys.executable, "-c", _POPULATE_SCRIPT], {**env, "NUMBA_CACHE_DIR": str(cache)},
+                            "cache fill"))
+        shutil.rmtree(directory, ignore_errors=True)
+        shutil.rmtree(cache, ignore_errors=True)
+    _report("georef build-kernels, every kernel from nothing", builds)
+    _report("numba cache filled with every exported function, one process", fills)
+
+
+def _startup(runs: int, base: dict[str, str]) -> None:
     print(f"{runs} fresh processes each; median (best)")
     with tempfile.TemporaryDirectory() as scratch:
         scratch = Path(scratch)
@@ -152,13 +240,13 @@ def main() -> None:
         if stale:
             print(f"(d) georef build-kernels: not measured, {', '.join(stale)} would be compiled")
             return
-        georef = shutil.which("georef", path=str(Path(sys.executable).parent)) or "georef"
         times = []
-        for _ in range(runs):
+        for _ in range(runs):  # this checkout's CLI, as `georef build-kernels` runs it
             done = subprocess.run([sys.executable, "-c", "import subprocess, sys, time; t = time.perf_counter(); "
                                    "subprocess.run(sys.argv[1:], check=True, capture_output=True); "
-                                   "print(time.perf_counter() - t)", georef, "build-kernels"],
-                                  env=base, capture_output=True, text=True, cwd=ROOT)
+                                   "print(time.perf_counter() - t)", sys.executable, "-m", "georef_cli.main",
+                                   "build-kernels"],
+                                  env=_tree_env(base), capture_output=True, text=True, cwd=ROOT)
             if done.returncode != 0:
                 print(f"(d) georef build-kernels: failed\n{done.stderr}")
                 break
@@ -166,6 +254,31 @@ def main() -> None:
         if times:
             print(f"(d) georef build-kernels, nothing to compile: {statistics.median(times):.2f} s "
                   f"(best {min(times):.2f}; whole command with Python start-up)")
+
+
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=5)
+    parser.add_argument("--process", action="store_true", help="time whole georef process runs")
+    parser.add_argument("--flight", type=Path, action="append", default=[],
+                        help="a folder with POS.txt, Kamera.txt, flight.toml (besides the bundled flight)")
+    parser.add_argument("--cold-runs", type=int, default=None, help="cold-cache runs per flight (default --runs)")
+    parser.add_argument("--build-runs", type=int, default=0, help="time build-kernels and cache filling N times")
+    parser.add_argument("--no-startup", action="store_true", help="skip the start-up figures (a)-(d)")
+    options = parser.parse_args()
+    base = {key: value for key, value in os.environ.items()
+            if key not in ("GEOREF_KERNELS", "GEOREF_KERNEL_DIR", "NUMBA_DISABLE_JIT", "NUMBA_CACHE_DIR")}
+    base["OPENBLAS_NUM_THREADS"] = "1"
+    if not options.no_startup:
+        _startup(options.runs, base)
+    with tempfile.TemporaryDirectory() as scratch:
+        if options.process:
+            cold_runs = options.runs if options.cold_runs is None else options.cold_runs
+            _process_runs([ROOT / "data", *options.flight], options.runs, cold_runs, base, Path(scratch))
+        if options.build_runs:
+            _build_runs(options.build_runs, base, Path(scratch))
 
 
 if __name__ == "__main__":

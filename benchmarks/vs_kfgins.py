@@ -20,12 +20,22 @@ KF-GINS is not a dependency of georef: ``--kfgins`` (or ``$KFGINS``) names its b
 (built here with cmake into ``<tree>/build``) or a git repository of it (its sources are exported into a
 temporary folder and built there). Without it the benchmark times georef alone and says so.
 
-Run: ``python benchmarks/vs_kfgins.py --kfgins ~/src/KF-GINS [--duration 870] [--rate 50] [--runs 5]``.
+``--kind`` names flights of other characters, each the helicopter flight of ``georef simulate`` with one thing
+changed (:data:`KINDS`): ``rotor`` (the default: the MEMS unit's rotor vibration), ``white`` and ``narrow-band``
+vibration at twice their reference level, ``gnss-3m`` (GNSS noise 3/3/5 m north/east/up, as ``--gnss-sigma
+3,3,5``), ``outage40`` (two 40-s GNSS outages and three outliers), ``multicopter`` (``georef simulate --vehicle
+multicopter``: consumer IMU, narrow-band vibration, no POS unit). KF-GINS gets each flight's GNSS sigmas and the
+IMU preset's noise densities. The noise fit's pass count (``noise_fit_passes`` of ``--summary-json``, from the
+first, uncounted round) is printed: georef's cost grows with it.
+
+Run: ``python benchmarks/vs_kfgins.py --kfgins ~/src/KF-GINS [--kind rotor] [--duration 870] [--rate 50]
+[--runs 5]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import resource
 import shutil
@@ -41,6 +51,33 @@ from georef.frames import C_e_n, geodetic_to_ecef
 from georef.imu_errors import imu_preset
 from georef.sim.files import write_flight
 from georef.sim.flight import SimConfig, SimulatedFlight, simulate
+from georef.sim.sensors import GnssModel, VibrationModel
+
+#: flight kind -> what it changes in the helicopter flight of ``georef simulate`` (:func:`sim_config`)
+KINDS: dict[str, str] = {
+    "rotor": "the helicopter as simulated by default (MEMS unit, 16 Hz rotor vibration)",
+    "white": "white (broad-band) vibration at twice its reference level",
+    "narrow-band": "narrow-band vibration (20 +- 2 Hz) at twice its reference level",
+    "gnss-3m": "GNSS noise 3/3/5 m north/east/up",
+    "outage40": "GNSS outages of 40 s at 200 and 520 s, outliers of 25, 40 and 20 m at 150, 400 and 700 s",
+    "multicopter": "a multicopter: consumer IMU, narrow-band vibration, no POS unit",
+}
+
+
+def sim_config(kind: str, duration_s: float, seed: int, rate_hz: float) -> SimConfig:
+    """The simulated flight of ``kind`` (:data:`KINDS`): ``duration_s`` [s], IMU rows at ``rate_hz`` [Hz]."""
+    changes: dict[str, object] = {"pos_rate_hz": rate_hz}
+    if kind in ("white", "narrow-band"):
+        changes["vibration"] = VibrationModel.of_kind(kind.replace("-", ""), 2.0)
+    elif kind == "gnss-3m":
+        changes["gnss"] = GnssModel(sigma_neu_m=(3.0, 3.0, 5.0))
+    elif kind == "outage40":
+        changes["gnss"] = GnssModel(outages=[(200.0, 40.0), (520.0, 40.0)],
+                                    outliers=[(150.0, 25.0), (400.0, 40.0), (700.0, 20.0)])
+    elif kind not in KINDS:
+        raise ValueError(f"unknown kind {kind!r}; one of {', '.join(KINDS)}")
+    vehicle = "multicopter" if kind == "multicopter" else "helicopter"
+    return SimConfig.for_vehicle(vehicle, duration_s=duration_s, seed=seed, **changes)
 
 
 def _run(command: list[str], cwd: Path | None = None) -> None:
@@ -170,6 +207,8 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=870.0, help="flight length [s]")
     parser.add_argument("--rate", type=float, default=50.0, help="POS row rate [Hz]")
     parser.add_argument("--seed", type=int, default=1, help="simulation seed")
+    parser.add_argument("--kind", choices=list(KINDS), default="rotor",
+                        help="the flight's character: " + "; ".join(f"{k}: {v}" for k, v in KINDS.items()))
     parser.add_argument("--runs", type=int, default=5, help="counted alternating pairs")
     parser.add_argument("--kfgins", default=os.environ.get("KFGINS"),
                         help="KF-GINS binary, source tree or git repository (default $KFGINS)")
@@ -185,9 +224,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         folder = args.folder or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
-        # the flight of `georef simulate FOLDER --duration D --rate R --seed S`
-        flight = simulate(SimConfig.for_vehicle("helicopter", duration_s=args.duration, seed=args.seed,
-                                                pos_rate_hz=args.rate))
+        # the flight of `georef simulate FOLDER --duration D --rate R --seed S` with the kind's change
+        flight = simulate(sim_config(args.kind, args.duration, args.seed, args.rate))
         paths = write_flight(flight, folder)
         commands = {"georef": [*pin, georef, "process", str(paths["POS.txt"]), str(paths["Kamera.txt"]),
                                "--config", str(paths["flight.toml"]), "--method", args.method, "-q",
@@ -196,19 +234,28 @@ def main() -> None:
             kf_folder = folder / "kfgins"
             kf_folder.mkdir(exist_ok=True)
             commands["KF-GINS"] = [*pin, str(binary), str(write_kfgins_inputs(flight, kf_folder))]
-        print(f"flight: {args.duration:g} s at {args.rate:g} Hz, {len(flight.pos)} IMU rows, "
+        print(f"flight {args.kind} ({KINDS[args.kind]}), seed {args.seed}: {args.duration:g} s at {args.rate:g} Hz, "
+              f"{len(flight.pos)} IMU rows, "
               f"{len(flight.gnss_fixes)} GNSS fixes, {len(flight.exposures)} exposures; georef --method "
-              f"{args.method}; {'pinned to core 0' if pin else 'not pinned'}")
+              f"{args.method}; {'pinned to core 0' if pin else 'not pinned'}; "
+              + ", ".join(f"{name}={os.environ.get(name, '(unset)')}"
+                          for name in ("GEOREF_FIT_BUDGET", "GEOREF_KERNELS")))
         load_before = os.getloadavg()
         times: dict[str, list[float]] = {name: [] for name in commands}
         cpu: dict[str, list[float]] = {name: [] for name in commands}
+        summary = folder / "summary.json"
         for run in range(args.runs + 1):  # the first round warms the caches and is not counted
             for name, command in commands.items():
+                if not run and name == "georef":  # its summary, for the noise fit's pass count
+                    command = [*command, "--summary-json", str(summary)]
                 seconds, used = _timed(command, env)
                 if run:
                     times[name].append(seconds)
                     cpu[name].append(used)
         load_after = os.getloadavg()
+        figures = json.loads(summary.read_text())["summary"]
+        print(f"georef: noise fit {figures.get('noise_fit_passes', 'n/a')} passes (noise_fit_passes), GNSS error "
+              f"model {figures.get('gnss_error_model')}, QC exit {json.loads(summary.read_text()).get('exit_code')}")
         if binary is not None:
             rms, rows = kfgins_position_error(flight, folder / "kfgins")
             print(f"KF-GINS: {rows} rows written, horizontal position RMS against the truth {rms:.2f} m")

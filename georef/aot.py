@@ -100,8 +100,7 @@ KERNELS: dict[str, KernelSpec] = {
     "ins": KernelSpec(
         "georef.fusion.ins_kernel",
         {"ekf_forward": KernelFunction(
-            args=(F1, F2, F2, INT, F1, F2, I1, F1, F2, F2, F2, F1, F2, INT, FLOAT, INT, FLOAT, FLOAT, F2, BOOL, BOOL,
-                  B1, F2),
+            args=(F1, F2, F2, F2, B1, F2, INT, F1, F2, I1, F1, F2, F2, F2, F1, F1, F2),
             returns=(I1, F1, F3, F3, F3, F2, I1, F2, F3, F3, F1, I1, I1, I1, F2, F3, I1, F2, I1, F2)),
          "rts_backward": KernelFunction(
             args=(F1, F3, F3, F3, F2, B1, B1, F1, I1, F2, F3, F2, I1, I1, I1, F2, F3, I1, F2, BOOL, F2),

@@ -30,12 +30,19 @@ import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from georef.io.atomic import atomic_write
 from georef.io.errors import GeorefError, InputError
+
+if TYPE_CHECKING:
+    from georef.config import ProcessingConfig
+    from georef.frames.heights import OutputFrames
+    from georef.io.exports import ExportSpec
+    from georef.pipeline import ProcessResult
 
 SUMMARY_COLUMNS = ["flight", "status", "method", "frames", "frames_flagged", "gnss_epochs", "rejected_fixes",
                    "innovation_mean_nis", "innovation_share_over_gate", "qc", "qc_details", "runtime_s", "message",
@@ -101,12 +108,7 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None,
     (format, file name) pairs written beside ``eo.csv`` in the flight's folder. ``calibration_prior``: the graph's
     prior on (lever arm [m], GNSS time offset [s]) as (mean, covariance), replacing the flight's own (campaign
     calibration); the row then carries ``calibration``, the graph's reduction to those variables."""
-    from georef.config import ProcessingConfig, load_config
-    from georef.frames.heights import OutputFrames
-    from georef.io.atomic import atomic_group
-    from georef.io.exports import ExportSpec, check_exports, write_export
     from georef.pipeline import process
-    from georef.qc import assess_result
 
     start = time.perf_counter()
     out = Path(output_root) / job.flight
@@ -116,68 +118,10 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None,
                calibration=None)
     log_lines = [f"flight {job.flight}", f"POS {job.pos}", f"camera {job.camera}", f"config {job.config}"]
     try:
-        cfg = load_config(job.config) if job.config else ProcessingConfig()
-        if method:
-            cfg = cfg.updated(method=method)
-        specs = [ExportSpec("csv", out / "eo.csv"), *(ExportSpec(fmt, out / name) for fmt, name in exports
-                                                      if fmt != "images")]
-        frames = (OutputFrames(cfg.output.crs, cfg.output.height, cfg.output.vertical_crs)
-                  if cfg.output.crs or cfg.output.height != "ellipsoidal" else None)
-        check_exports(specs, frames)  # a format that needs this flight's CRS fails before processing
-        image_targets = [out / name for fmt, name in exports if fmt == "images"]
-        if image_targets:
-            from georef.io.image_export import check_image_export
-
-            if job.images is None:
-                raise InputError(job.flight, None, None, f"--export images: this flight has no photos (a folder "
-                                 f"{IMAGES_FOLDER}/ beside its POS.txt, or an images column in the manifest)")
-            for target in image_targets:
-                check_image_export(Path(job.images), target, frames, cfg.output.image_names)
-        result = process(job.pos, job.camera, cfg, calibration_prior=calibration_prior)
-        image_checks = []
-        with atomic_group():
-            for spec in specs:
-                write_export(result.columns, spec.path, spec.fmt, frames=result.frames,
-                             odm_angles=cfg.output.odm_angles)
-            if image_targets:
-                from georef.io.image_export import export_images
-                from georef.io.image_match import ClockMatchError
-
-                flight_day = None if result.flight is None else float(result.flight.day_start_utc)
-                for target in image_targets:
-                    try:
-                        done = export_images(result.columns, Path(job.images), target, frames=result.frames,
-                                             day_start_posix=flight_day,
-                                             date_source=None if flight_day is None else "the log's own date")
-                    except ClockMatchError as exc:  # batch has neither option the message names: its own advice
-                        raise ClockMatchError(exc.finding, BATCH_CLOCK_ADVICE) from None
-                    log_lines.extend(done.lines())
-                    image_checks.append(done.check())
-                    row["outputs"].append({"what": "export", "format": "images", "path": str(target)})
-        row["outputs"] += [{"what": "table" if k == 0 else "export", "format": spec.fmt, "path": str(spec.path)}
-                           for k, spec in enumerate(specs)]
-        summary = result.summary()
-        if result.nav.graph_info is not None:
-            row["calibration"] = result.nav.graph_info.calibration.as_lists()
-        gnss = result.nav.gnss
-        used = gnss.status >= 1
-        nis = gnss.normalised_innovation_sq[used]
-        row.update(status="ok", method=cfg.processing.method, frames=summary["frames_written"],
-                   frames_flagged=summary["frames_flagged"], gnss_epochs=summary["gnss_epochs"],
-                   rejected_fixes=len(summary["gnss_rejected_lines"]),
-                   innovation_mean_nis=float(np.mean(nis)) if len(nis) else float("nan"),
-                   innovation_share_over_gate=float(np.mean(gnss.normalised_innovation_sq[gnss.status >= 0]
-                                                            > cfg.gnss_gate.chi2)) if len(nis) else float("nan"),
-                   message="")
-        # the verdict is judged here, on the worker, and travels back as plain text
-        verdict = assess_result(result)
-        verdict = type(verdict)((*verdict.checks, *(check for check in image_checks if check is not None)))
-        row.update(qc="passed" if verdict.passed else "failed: " + ", ".join(c.name for c in verdict.failures),
-                   qc_details=" | ".join(c.line() for c in verdict.checks if c.status != "pass"),
-                   checks=verdict.to_dicts(), summary=summary)
-        log_lines += [f"{key}: {value}" for key, value in summary.items()]
-        log_lines += [f"QC {check.line()}" for check in verdict.checks]
-        log_lines += [f"notice: {notice}" for notice in result.notices]
+        plan = _flight_plan(job, out, method, exports)
+        result = process(job.pos, job.camera, plan.cfg, calibration_prior=calibration_prior)
+        image_checks = _write_flight_outputs(job, plan, result, row, log_lines)
+        _record_result(row, plan.cfg, result, image_checks, log_lines)
     except Exception as exc:  # noqa: BLE001 - a failed flight is reported, the batch goes on
         row["message"] = f"{type(exc).__name__}: {exc}"
         row["status"] = "failed"
@@ -193,11 +137,112 @@ def process_flight(job: FlightJob, output_root: str, method: str | None = None,
     return row
 
 
+@dataclass(frozen=True)
+class _FlightPlan:
+    """What one flight's run uses and writes: its configuration ``cfg``, the table's and exports' ``specs`` (the
+    table first), its output ``frames`` (None: WGS 84 ellipsoidal) and the folders its geotagged photos go to
+    (``image_targets``)."""
+
+    cfg: ProcessingConfig
+    specs: list[ExportSpec]
+    frames: OutputFrames | None
+    image_targets: list[Path]
+
+
+def _flight_plan(job: FlightJob, out: Path, method: str | None, exports: tuple[tuple[str, str], ...]) -> _FlightPlan:
+    """The flight's configuration and outputs, checked before processing: a format that needs the flight's CRS, or
+    photos the flight lacks, fails here."""
+    from georef.config import ProcessingConfig, load_config
+    from georef.frames.heights import OutputFrames
+    from georef.io.exports import ExportSpec, check_exports
+
+    cfg = load_config(job.config) if job.config else ProcessingConfig()
+    if method:
+        cfg = cfg.updated(method=method)
+    specs = [ExportSpec("csv", out / "eo.csv"), *(ExportSpec(fmt, out / name) for fmt, name in exports
+                                                  if fmt != "images")]
+    frames = (OutputFrames(cfg.output.crs, cfg.output.height, cfg.output.vertical_crs)
+              if cfg.output.crs or cfg.output.height != "ellipsoidal" else None)
+    check_exports(specs, frames)  # a format that needs this flight's CRS fails before processing
+    image_targets = [out / name for fmt, name in exports if fmt == "images"]
+    if image_targets:
+        from georef.io.image_export import check_image_export
+
+        if job.images is None:
+            raise InputError(job.flight, None, None, f"--export images: this flight has no photos (a folder "
+                             f"{IMAGES_FOLDER}/ beside its POS.txt, or an images column in the manifest)")
+        for target in image_targets:
+            check_image_export(Path(job.images), target, frames, cfg.output.image_names)
+    return _FlightPlan(cfg=cfg, specs=specs, frames=frames, image_targets=image_targets)
+
+
+def _write_flight_outputs(job: FlightJob, plan: _FlightPlan, result: ProcessResult, row: dict,
+                          log_lines: list[str]) -> list:
+    """The table, the exports and the geotagged photos, all or nothing; each listed in ``row["outputs"]``.
+    Returns the photo exports' quality checks (None where there is none)."""
+    from georef.io.atomic import atomic_group
+    from georef.io.exports import write_export
+
+    image_checks = []
+    with atomic_group():
+        for spec in plan.specs:
+            write_export(result.columns, spec.path, spec.fmt, frames=result.frames,
+                         odm_angles=plan.cfg.output.odm_angles)
+        if plan.image_targets:
+            from georef.io.image_export import export_images
+            from georef.io.image_match import ClockMatchError
+
+            flight_day = None if result.flight is None else float(result.flight.day_start_utc)
+            for target in plan.image_targets:
+                try:
+                    done = export_images(result.columns, Path(job.images), target, frames=result.frames,
+                                         day_start_posix=flight_day,
+                                         date_source=None if flight_day is None else "the log's own date")
+                except ClockMatchError as exc:  # batch has neither option the message names: its own advice
+                    raise ClockMatchError(exc.finding, BATCH_CLOCK_ADVICE) from None
+                log_lines.extend(done.lines())
+                image_checks.append(done.check())
+                row["outputs"].append({"what": "export", "format": "images", "path": str(target)})
+    row["outputs"] += [{"what": "table" if k == 0 else "export", "format": spec.fmt, "path": str(spec.path)}
+                       for k, spec in enumerate(plan.specs)]
+    return image_checks
+
+
+def _record_result(row: dict, cfg: ProcessingConfig, result: ProcessResult, image_checks: list,
+                   log_lines: list[str]) -> None:
+    """The run's figures, its calibration (graph) and its quality verdict (judged here, on the worker, and sent
+    back as plain text) into ``row``; the summary, checks and notices into the log."""
+    from georef.qc import assess_result
+
+    summary = result.summary()
+    if result.nav.graph_info is not None:
+        row["calibration"] = result.nav.graph_info.calibration.as_lists()
+    gnss = result.nav.gnss
+    used = gnss.status >= 1
+    nis = gnss.normalised_innovation_sq[used]
+    row.update(status="ok", method=cfg.processing.method, frames=summary["frames_written"],
+               frames_flagged=summary["frames_flagged"], gnss_epochs=summary["gnss_epochs"],
+               rejected_fixes=len(summary["gnss_rejected_lines"]),
+               innovation_mean_nis=float(np.mean(nis)) if len(nis) else float("nan"),
+               innovation_share_over_gate=float(np.mean(gnss.normalised_innovation_sq[gnss.status >= 0]
+                                                        > cfg.gnss_gate.chi2)) if len(nis) else float("nan"),
+               message="")
+    # the verdict is judged here, on the worker, and travels back as plain text
+    verdict = assess_result(result)
+    verdict = type(verdict)((*verdict.checks, *(check for check in image_checks if check is not None)))
+    row.update(qc="passed" if verdict.passed else "failed: " + ", ".join(c.name for c in verdict.failures),
+               qc_details=" | ".join(c.line() for c in verdict.checks if c.status != "pass"),
+               checks=verdict.to_dicts(), summary=summary)
+    log_lines += [f"{key}: {value}" for key, value in summary.items()]
+    log_lines += [f"QC {check.line()}" for check in verdict.checks]
+    log_lines += [f"notice: {notice}" for notice in result.notices]
+
+
 #: Dask settings for the LocalCluster that georef starts, where a flight is one CPU-bound, single-threaded task.
 #: * The nanny's default environment sets ``MALLOC_TRIM_THRESHOLD_=65536`` (to hand memory back to the OS).
 #:   Setting it switches off glibc's dynamic mmap threshold, so every large numpy array of the pipeline is a
-#:   fresh mmap, page-faulted in and unmapped again: tasks ran 1.16-1.24x slower than in a plain process and the
-#:   2-worker speed-up stayed at 1.42-1.67x. Without it: 1.01x and 1.90-1.92x (benchmarks/bench_batch.py).
+#:   fresh mmap, page-faulted in and unmapped again: tasks ran slower than in a plain process and two workers
+#:   gained far less than twice (benchmarks/bench_batch.py; docs/method-graph.md, "`georef batch`").
 #:   BLAS/OpenMP stay at one thread per worker, as in Dask's default.
 #: * The statistical profiler samples every thread's stack every 10 ms (holding the GIL); the memory and system
 #:   monitors poll 10 and 2 times a second. None of it is of use to a batch of flights.

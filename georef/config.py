@@ -20,10 +20,14 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from georef.distributions import CHI2_3DOF_99_9
 from georef.imu_errors import IMU_PRESETS, ImuErrorModel, imu_preset
 from georef.io.errors import InputError
 
 METHODS = ("rts", "ekf", "axis", "graph")
+#: ``[ins] vehicle`` (``--vehicle``): "auto" (non-holonomic constraints when the motion shows a ground vehicle),
+#: "ground" or "air"
+VEHICLE_KINDS = ("auto", "ground", "air")
 
 #: field metadata: the field's ``flight.toml`` key when it differs from the field's name
 _TOML = "toml"
@@ -253,9 +257,9 @@ class UnitSection(_Section):
     angle_noise: float = _toml("unit_angle_noise", 0.02)
     #: how fast the drift of the unit's yaw origin may change [deg/min per sqrt(min)]. 0.05 held the drift so
     #: nearly constant that, on flights whose only heading information is one turn, the z-gyro bias took up what
-    #: the unit's yaw and the INS disagreed on: 40 two-minute flights had 80 % of yaw errors inside 2 sigma (a
-    #: flight's yaw a ramp 0.9 deg off at its ends); 0.2 gives 97.7 % and a third less yaw error, every other kind
-    #: within its standard errors (benchmarks/honesty.py, docs/method-ins.md section 9)
+    #: the unit's yaw and the INS disagreed on, and the yaw sigmas were overconfident; 0.2 makes them honest with
+    #: less yaw error (benchmarks/honesty.py; docs/performance.md, "The unit's yaw drift"; docs/method-ins.md
+    #: section 9)
     drift_change: float = _toml("unit_drift_change", 0.2)
     #: full-state filters: fuse the unit's own roll/pitch/yaw (when POS.txt has them) with modelled errors
     aiding: bool = _toml("unit_aiding", True)
@@ -293,8 +297,8 @@ class GnssGateSection(_Section):
     """``[gnss_gate]``: the innovation gate of the GNSS fixes."""
 
     SECTION: ClassVar[str] = "gnss_gate"
-    #: chi-square threshold of a 3-D GNSS position innovation (16.27 = 99.9 %)
-    chi2: float = _toml("gate_chi2", 16.27)
+    #: chi-square threshold of a 3-D GNSS position innovation (99.9 %)
+    chi2: float = _toml("gate_chi2", CHI2_3DOF_99_9)
 
     def __post_init__(self) -> None:
         self._check_types()
@@ -321,7 +325,7 @@ class InsSection(_Section):
         if self.imu_preset not in IMU_PRESETS:
             self._fail("imu_preset", f"is not a known IMU preset ({', '.join(IMU_PRESETS)}), got {self.imu_preset!r}")
         self._positive("covariance_rate", "Hz")
-        self._choice("vehicle", ("auto", "ground", "air"))
+        self._choice("vehicle", VEHICLE_KINDS)
 
 
 @dataclass(frozen=True)
@@ -335,8 +339,8 @@ class GraphSection(_Section):
     robust: bool = _toml("graph_robust", True)
     #: 1-sigma prior [unitless; 0.002 = 2000 ppm] of the gyro and accelerometer scale-factor errors, estimated with
     #: the trajectory where the motion makes them observable (a turn for the yaw gyro). 0 (default): not
-    #: estimated; on flights without scale-factor errors estimating them cost up to 4.5 % horizontal RMS
-    #: (docs/method-graph.md)
+    #: estimated; on flights without scale-factor errors estimating them cost horizontal accuracy
+    #: (docs/method-graph.md, "Calibration, measured")
     scale_factor_sigma: float = _toml("graph_scale_factor_sigma", 0.0)
 
     def __post_init__(self) -> None:

@@ -2,18 +2,18 @@
 alignment's F-test.
 
 These replace three functions of ``scipy.special`` (``chdtrc``, ``chdtri``, ``fdtri``) on the path of every
-``georef process``, for values computed once each. The measured reason for own code in place of the library:
-after numpy and pandas (0.67 s of CPU), importing only ``scipy.special`` (``from scipy.special import chdtri``)
-adds 0.24 s, most of it SciPy's array-API layer and the wrappers it builds around every special function;
-importing ``scipy.linalg`` adds 0.24 s as well, both 0.28 s, since they share that layer (median CPU of 9
-alternating processes each, one core, 2026-11-23). ``georef.kernel_blas`` keeps ``scipy.linalg`` off the path;
-with ``scipy.special`` on it, that saving would be 0.04 s instead of 0.28 s, a seventh of a 15-minute flight's
-run. ``tests/test_distributions.py`` checks these functions against ``scipy.special`` (still a dependency) to
-1e-12 relative over the degrees of freedom and probabilities used and beyond.
+``georef process``, for values computed once each. The reason for own code in place of the library: importing
+``scipy.special`` costs a run about as much as ``scipy.linalg``, most of it SciPy's array-API layer (which the two
+share) and the wrappers it builds around every special function; ``georef.kernel_blas`` keeps ``scipy.linalg``
+off the path, and with ``scipy.special`` on it that saving would be mostly lost (the figures:
+``docs/performance.md``, "Imports"). ``tests/test_distributions.py`` checks these functions against
+``scipy.special`` (still a dependency) to 1e-12 relative over the degrees of freedom and probabilities used and
+beyond.
 
 * :func:`chi2_sf` — ``P(X > x)`` for ``X ~ chi-square(k)``: the regularized upper incomplete gamma function
-  ``Q(k/2, x/2)``, by its power series below ``a + 1`` and its continued fraction above (modified Lentz), as in
-  Press, Teukolsky, Vetterling & Flannery (2007), *Numerical Recipes*, 3rd ed., §6.2;
+  ``Q(k/2, x/2)`` (:func:`chi2_cdf` its complement ``P(k/2, x/2)``: the report's share of good fixes a gate
+  passes), by its power series below ``a + 1`` and its continued fraction above (modified Lentz), as in Press,
+  Teukolsky, Vetterling & Flannery (2007), *Numerical Recipes*, 3rd ed., §6.2;
 * :func:`chi2_isf` — the ``x`` with ``P(X > x) = p`` (``scipy.special.chdtri(k, p)``), by Newton's method from
   the Wilson–Hilferty approximation (Wilson & Hilferty 1931, PNAS 17:684), on whichever tail is the smaller;
 * :func:`f_sf` — ``P(F > f)`` for ``F ~ F(d1, d2)`` with ``d1`` even: ``I_y(d2/2, d1/2)`` with
@@ -24,7 +24,12 @@ run. ``tests/test_distributions.py`` checks these functions against ``scipy.spec
 from __future__ import annotations
 
 import math
-from statistics import NormalDist
+
+#: the chi-square(3) quantile at 99.9 % (``chi2_isf(1e-3, 3)`` = 16.266, to two decimals): a gate on a 3-D
+#: innovation's ``zᵀS⁻¹z`` that refuses one good measurement in a thousand. The GNSS fixes' default gate
+#: (flight.toml ``gate_chi2``, :class:`georef.config.GnssGateSection`) and the zero-velocity update's
+#: (:data:`georef.fusion.ins_layout.ZUPT_GATE`)
+CHI2_3DOF_99_9 = 16.27
 
 _EPS = 1e-16
 _TINY = 1e-300
@@ -97,6 +102,13 @@ def chi2_sf(x: float, k: float) -> float:
     return _gamma_tails(0.5 * k, 0.5 * x)[1]
 
 
+def chi2_cdf(x: float, k: float) -> float:
+    """P(X <= x) for X ~ chi-square with ``k`` degrees of freedom (``scipy.special.chdtr(k, x)``)."""
+    if k <= 0:
+        raise ValueError(f"degrees of freedom must be positive, got {k}")
+    return _gamma_tails(0.5 * k, 0.5 * x)[0]
+
+
 def chi2_isf(p: float, k: float) -> float:
     """The x with P(X > x) = ``p`` for X ~ chi-square(k) (``scipy.special.chdtri(k, p)``), 0 < p < 1.
 
@@ -107,6 +119,8 @@ def chi2_isf(p: float, k: float) -> float:
         raise ValueError(f"the probability must lie strictly between 0 and 1, got {p}")
     if k <= 0:
         raise ValueError(f"degrees of freedom must be positive, got {k}")
+    from statistics import NormalDist  # its import costs 50 ms, and georef.config imports this module at start-up
+
     a = 0.5 * k
     upper = p < 0.5  # the tail solved for: Q(a, y) = p, or P(a, y) = 1 - p
     log_target = math.log(p) if upper else math.log1p(-p)

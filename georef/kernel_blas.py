@@ -3,8 +3,9 @@
 A kernel compiled by numba (ahead of time or by the JIT) finds BLAS and LAPACK as numba does: at its first matrix
 product or solve it imports the modules ``scipy.linalg.cython_blas`` and ``scipy.linalg.cython_lapack`` by name and
 reads the function pointers from their ``__pyx_capi__``. Importing them by name first runs the ``scipy.linalg``
-package, which imports most of scipy.linalg and scipy's array-API layer: 0.22 s of CPU in every ``georef
-process``, for two extension modules that load in 0.01 s on their own (measured after numpy and pandas).
+package, which imports most of scipy.linalg and scipy's array-API layer, a large share of every ``georef
+process``'s CPU, for two extension modules that load in a small fraction of it on their own
+(``docs/performance.md``, "Imports").
 
 :func:`register` loads the two extension modules from scipy's own files and registers them under their names in
 ``sys.modules``, so that the kernels' lookup finds them there. They are the same modules, with the same library and
@@ -32,7 +33,7 @@ def register() -> bool:
     if "scipy.linalg" in sys.modules:
         return False  # the package is imported: numba's import finds its modules the usual way
     try:
-        import scipy  # noqa: F401  (the top-level package only: 0.015 s)
+        import scipy  # noqa: F401  (the top-level package only: cheap, docs/performance.md "Imports")
 
         directory = Path(sys.modules["scipy"].__file__).parent / "linalg"
         loaded = []

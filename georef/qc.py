@@ -40,7 +40,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from georef.distributions import chi2_isf, chi2_sf  # scipy.special costs every run 0.2 s of import
+from georef.config import GnssGateSection
+from georef.distributions import chi2_isf, chi2_sf  # scipy.special's import would cost every run (its module says)
 from georef.eo import FLAG_AFTER_LAST_FIX, FLAG_BEFORE_FIRST_FIX, FLAG_NO_SIGMA, FLAG_OUTSIDE, flag_mask
 
 if TYPE_CHECKING:
@@ -85,8 +86,6 @@ LATENCY_SIGMAS = 3.0
 LATENCY_MIN_S = 0.02
 #: frames: more than this share outside the navigation span fails
 OUTSIDE_FAIL_SHARE = 0.5
-#: the default chi-square gate of a 3-D GNSS innovation (ProcessingConfig.gnss_gate.chi2, flight.toml's gate_chi2)
-DEFAULT_GATE = 16.27
 #: held-out fixes: the solution fails when its error exceeds both the straight lines' and this many fix sigmas ...
 HELD_FAIL_SIGMAS = 3.0
 #: ... or its errors exceed their sigmas by more than this (RMS); over HELD_Z_NOTE they are noted as too small
@@ -193,7 +192,7 @@ def _gate(nav: NavSolution, cfg: ProcessingConfig | None) -> float:
     """The chi-square gate of the run (3 degrees of freedom)."""
     if nav.diagnostics is not None:
         return float(nav.diagnostics.gate_chi2)
-    return float(cfg.gnss_gate.chi2) if cfg is not None else DEFAULT_GATE
+    return float((cfg.gnss_gate if cfg is not None else GnssGateSection()).chi2)
 
 
 # ---- the checks --------------------------------------------------------------------------------------------------
@@ -638,10 +637,9 @@ def check_restarts(nav: NavSolution) -> Check | None:
 
 
 #: graph against RTS: the share of keyframes whose horizontal positions, or attitudes on any axis, differ by more
-#: than 3 of the graph's sigma that fails the check. Both smoothers use the same data. Horizontal: on the bundled
-#: flight the largest separation is 0.47 sigma; on KITTI the median was 4.7 sigma, 62 % of keyframes beyond 3,
-#: without the graph's ground-vehicle factors (4.3 sigma with them: the free lever arm takes up a time-tag offset).
-#: Attitude: a simulated car's graph pitch lay inside its 2 sigma for 0 % of frames while the positions agreed.
+#: than 3 of the graph's sigma that fails the check. Both smoothers use the same data, so a clean flight stays well
+#: inside; flights where one of them went wrong (KITTI's positions, a simulated car's attitude) lie far beyond
+#: (the figures: docs/qc.md, "graph vs rts").
 GRAPH_SEPARATION_SIGMA = 3.0
 GRAPH_SEPARATION_SHARE = 0.02
 

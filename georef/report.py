@@ -34,8 +34,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.ticker import FuncFormatter, MaxNLocator, MultipleLocator  # noqa: E402
 
+from georef.distributions import chi2_cdf  # noqa: E402
 from georef.frames import STANDARD_GRAVITY, C_e_n, wrap_360, wrap_pi  # noqa: E402
 from georef.io.atomic import atomic_write  # noqa: E402
+from georef.run_summary import RunSummary, utc, utc_span  # noqa: E402
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -67,7 +69,6 @@ SECTIONS = [
 MAX_PLOT_POINTS = 20_000
 #: PNG resolution [dots per inch] of the embedded plots
 DPI = 90
-DAY_S = 86_400.0
 _COMPONENTS = ("north", "east", "down")
 _ANGLES = ("roll", "pitch", "yaw")
 _COLOURS = ("tab:blue", "tab:orange", "tab:green")
@@ -75,24 +76,6 @@ _STATUS_COLOURS = {"pass": "#1a7f37", "warn": "#9a6700", "fail": "#cf222e"}
 
 
 # ---- formatting ---------------------------------------------------------------------------------------------
-def utc(seconds: float, digits: int = 1) -> str:
-    """UTC seconds of day (continuous across midnight) as ``hh:mm:ss.s`` (``+1 d`` after midnight)."""
-    if not math.isfinite(seconds):
-        return "—"
-    total = round(float(seconds), digits)
-    day, rest = divmod(total, DAY_S)
-    hours, rest = divmod(rest, 3600.0)
-    minutes, secs = divmod(rest, 60.0)
-    width = 2 + (digits + 1 if digits else 0)
-    text = f"{int(hours):02d}:{int(minutes):02d}:{secs:0{width}.{digits}f}"
-    return text + (f" (+{int(day)} d)" if day else "")
-
-
-def utc_span(start: float, end: float, digits: int = 1) -> str:
-    """``hh:mm:ss – hh:mm:ss UTC (n s)``."""
-    return f"{utc(start, digits)} – {utc(end, digits)} UTC ({end - start:.{digits}f} s)"
-
-
 def _number(value: float, digits: int = 3) -> str:
     return f"{value:.{digits}f}".replace("-", "−") if math.isfinite(value) else "—"
 
@@ -521,89 +504,24 @@ def _verdict(verdict: Verdict) -> str:
             + _table(rows, header=("status", "check", "what was found")))
 
 
-def _flag_counts(table: pd.DataFrame) -> dict[str, int]:
-    counts: dict[str, int] = {}
-    for flag in table["flag"].astype(str):
-        for part in (p.strip() for p in flag.split(";")):
-            if part:
-                counts[part] = counts.get(part, 0) + 1
-    return counts
-
-
 def _summary(result: ProcessResult, accuracy: dict[str, float] | None, gaps: list[tuple[float, float]]) -> str:
-    s = result.summary()
-    table = result.table
-    nav = result.nav
-    rows: list[tuple[object, object]] = []
-    counts = _flag_counts(table)
-    flagged = ", ".join(f"{n} {flag}" for flag, n in counts.items())
-    rows.append(("frames", f"{s['frames_written']} written, {s['frames_flagged']} flagged"
-                 + (f" ({flagged})" if flagged else "")))
-    t0, t1 = s["time_span_s"]
-    rows.append(("time span", utc_span(t0, t1)))
-    rows.append(("IMU", f"{s['imu_rows']:,} rows at {s['imu_rate_hz']:.1f} Hz; {len(gaps)} data gap(s)"))
-    gnss = nav.gnss
-    rejected = gnss.status == 0
-    text = (f"{s['gnss_epochs']} fixes: {s['gnss_used']} used, {int(rejected.sum())} rejected by the gate, "
-            f"{int((gnss.status < 0).sum())} not processed; {len(s['gnss_gaps'])} outage(s)")
-    rows.append(("GNSS", text))
-    if rejected.any():
-        shown = [f"{utc(t)} (line {int(line)})" for t, line in zip(gnss.time[rejected], gnss.line[rejected],
-                                                                  strict=True)]
-        rows.append(("rejected fixes", ", ".join(shown[:20]) + (f", … ({len(shown)} in all)" if len(shown) > 20
-                                                                else "")))
-    for start, end in s["gnss_gaps"][:20]:
-        rows.append(("GNSS outage", utc_span(start, end, 0)))
-    if len(s["gnss_gaps"]) > 20:
-        rows.append(("GNSS outage", f"… {len(s['gnss_gaps']) - 20} more"))
-    rows.append(("method", s["method"]))
-    if s.get("heading_source") is not None:
-        rows.append(("heading source", s["heading_source"]))
-    if s.get("unit_yaw_origin_deg") is not None:
-        drift, drift_sigma = s.get("unit_yaw_drift_deg_per_min"), s.get("unit_yaw_drift_sigma_deg_per_min")
-        rows.append(("POS unit yaw origin", f"{_number(s['unit_yaw_origin_deg'])} ± "
-                     f"{_number(s['unit_yaw_origin_sigma_deg'])} deg at the start (true yaw = unit yaw + origin)"
-                     + (f", drift {_number(drift)}" if drift is not None else "")
-                     + (f" ± {_number(drift_sigma)}" if drift is not None and drift_sigma is not None else "")
-                     + (" deg/min" if drift is not None else "")))
-    if s.get("yaw_offset_deg") is not None:
-        rows.append(("POS unit yaw offset", f"{_number(s['yaw_offset_deg'])} ± {_number(s['yaw_offset_sigma_deg'])}"
-                     f" deg, drift {_number(s['yaw_drift_deg_per_min'])} ± "
-                     f"{_number(s['yaw_drift_sigma_deg_per_min'])} deg/min"))
-    scale_p, scale_a = s.get("sigma_scale_position"), s.get("sigma_scale_attitude")
-    if scale_p is not None or scale_a is not None:
-        parts = [] if scale_p is None else [f"position {_number(scale_p)} (held-out fixes)"]
-        if scale_a is not None:
-            parts.append("roll/pitch/yaw " + "/".join("–" if v is None else _number(v) for v in scale_a)
-                         + " (forward filter against the smoother)")
-        rows.append(("σ scale on this flight", "; ".join(parts) + ": errors over their σ, RMS; 1 is as claimed, "
-                     "above 1 the σ are too small"))
-    if s.get("gnss_sigma_fitted_m") is not None:
-        rows.append(("fitted noise", f"GNSS σ {_triple(s['gnss_sigma_fitted_m'], ('N', 'E', 'U'), 'm', 2)}; "
-                     f"velocity random walk {_number(s['vrw_m_s_sqrt_h'])} m/s/√h, angle random walk "
-                     f"{_number(s['arw_deg_sqrt_h'])} deg/√h"))
-    if s.get("ground_vehicle"):
-        rows.append(("ground vehicle", "non-holonomic constraints applied"))
-    quirks = result.log.time_repairs.quirk_lines
-    rows.append(("time tags repaired", f"{len(quirks)}" + (f" (lines {readable(quirks)})" if quirks else "")))
-    valid = table[table["sigma_n"].notna()]
-    if len(valid):
-        horizontal = np.hypot(valid["sigma_n"], valid["sigma_e"])
-        rows.append(("frame σ, median (largest)",
-                     f"north {_number(valid['sigma_n'].median())} ({_number(valid['sigma_n'].max())}), east "
-                     f"{_number(valid['sigma_e'].median())} ({_number(valid['sigma_e'].max())}), up "
-                     f"{_number(valid['sigma_u'].median())} ({_number(valid['sigma_u'].max())}) m; horizontal "
-                     f"{_number(float(np.median(horizontal)))} m"))
-        rows.append(("frame attitude σ, median (largest)",
-                     ", ".join(f"{a} {_number(valid[f'sigma_{a}'].median(), 4)} "
-                               f"({_number(valid[f'sigma_{a}'].max(), 4)})" for a in _ANGLES) + " deg"))
-    sep = nav.forward
-    if sep is not None and len(sep.time):
-        rms_h = float(np.sqrt(np.mean(sep.position[:, 0] ** 2 + sep.position[:, 1] ** 2)))
-        rms_v = float(np.sqrt(np.mean(sep.position[:, 2] ** 2)))
-        rows.append(("forward − smoothed, RMS", f"horizontal {_number(rms_h)} m, vertical {_number(rms_v)} m, yaw "
-                     f"{_number(float(np.degrees(np.sqrt(np.mean(sep.attitude[:, 2] ** 2)))), 4)} deg"))
-    for key, value in (accuracy or {}).items():
+    """The run's summary (:meth:`georef.run_summary.RunSummary.rows`), the figures against a reference, the input
+    notices, and every figure of the JSON summary no row shows (figures added later are shown, readably)."""
+    summary = RunSummary.of(result, imu_gaps=len(gaps))
+    placed = summary.placed_rows("report")
+    rows: list[tuple[object, object]] = [(row.label, row.text) for row in placed if row.text is not None]
+    rows += _accuracy_rows(accuracy or {})
+    rows += [("input notice", str(notice)) for notice in result.notices]
+    shown = {key for row in placed for key in row.keys}
+    rows += [(key.replace("_", " "), readable(value)) for key, value in summary.to_dict().items()
+             if key not in shown and value is not None]
+    return _table(rows)
+
+
+def _accuracy_rows(accuracy: dict[str, float]) -> list[tuple[str, str]]:
+    """The figures against a reference (``georef.evaluate.accuracy``), units from the keys' suffixes."""
+    rows = []
+    for key, value in accuracy.items():
         label, unit = key, ""
         for suffix, name in (("_m", "m"), ("_deg", "deg"), ("_s", "s")):
             if key.endswith(suffix):
@@ -611,19 +529,7 @@ def _summary(result: ProcessResult, accuracy: dict[str, float] | None, gaps: lis
         digits = 4 if unit == " [deg]" else 3
         shown = _number(float(value), digits) if isinstance(value, float | int) else readable(value)
         rows.append((f"against the reference: {label.replace('_', ' ').replace('rms', 'RMS')}{unit}", shown))
-    for notice in result.notices:
-        rows.append(("input notice", str(notice)))
-    known = {"frames_written", "frames_flagged", "frames_outside_span", "frames_in_outage", "frames_after_last_fix",
-             "frames_before_first_fix", "time_span_s", "imu_rows", "imu_rate_hz", "gnss_epochs", "gnss_used",
-             "gnss_rejected_lines", "gnss_gaps", "yaw_offset_deg", "yaw_offset_sigma_deg", "yaw_drift_deg_per_min",
-             "yaw_drift_sigma_deg_per_min", "time_quirks_repaired", "method", "heading_source",
-             "unit_yaw_origin_deg", "unit_yaw_origin_sigma_deg", "unit_yaw_drift_deg_per_min",
-             "unit_yaw_drift_sigma_deg_per_min", "sigma_scale_position", "sigma_scale_attitude",
-             "gnss_sigma_fitted_m", "vrw_m_s_sqrt_h", "arw_deg_sqrt_h", "ground_vehicle"}
-    for key, value in s.items():  # figures added to the summary later are shown, readably
-        if key not in known and value is not None:
-            rows.append((key.replace("_", " "), readable(value)))
-    return _table(rows)
+    return rows
 
 
 def _sha256(path: Path) -> str:
@@ -642,6 +548,14 @@ def _inputs(result: ProcessResult, extra: dict[str, Path | str | None] | None) -
 
 def _provenance(result: ProcessResult, inputs: dict[str, Path | str | None] | None, command: str | None,
                 created: dt.datetime) -> str:
+    """The software, the date and host, the command; every input file with its size and SHA-256; the mounting and
+    the GNSS settings (with what the data showed of them)."""
+    return (_table(_software_rows(command, created))
+            + "<h3>Input files</h3>" + _table(_file_rows(result, inputs), header=("file", "path", "size", "SHA-256"))
+            + "<h3>Mounting and GNSS</h3>" + _table(_mounting_rows(result)))
+
+
+def _software_rows(command: str | None, created: dt.datetime) -> list[tuple[object, object]]:
     versions = [f"georef {_version('georef')}", f"Python {platform.python_version()}", f"NumPy {np.__version__}"]
     try:
         import pyproj
@@ -656,45 +570,37 @@ def _provenance(result: ProcessResult, inputs: dict[str, Path | str | None] | No
     ]
     if command:
         rows.append(("command", _Raw(f"<code>{html.escape(command)}</code>")))
-    file_rows = []
+    return rows
+
+
+def _file_rows(result: ProcessResult, inputs: dict[str, Path | str | None] | None) -> list[tuple[object, ...]]:
+    rows = []
     for label, path in _inputs(result, inputs):
         try:
             size, digest = _size(path.stat().st_size), _sha256(path)
         except OSError as exc:
             size, digest = "—", f"not readable now: {exc.strerror}"
-        file_rows.append((label, _Raw(f"<code>{html.escape(str(path))}</code>"), size, _Raw(f'<code class="hash">'
-                                                                                              f"{digest}</code>")))
+        rows.append((label, _Raw(f"<code>{html.escape(str(path))}</code>"), size,
+                     _Raw(f'<code class="hash">{digest}</code>')))
+    return rows
+
+
+def _mounting_rows(result: ProcessResult) -> list[tuple[object, object]]:
+    """The lever arms and boresight given, what the data and the graph showed of them, the GNSS sigma, gate and
+    latency, the camera's trigger latency and the projected CRS."""
     cfg = result.config
-    diagnostics = result.nav.diagnostics
+    calibration = getattr(result.nav.diagnostics, "calibration", None)
     mount, gate = cfg.mounting, cfg.gnss_gate.chi2
-    mounting: list[tuple[object, object]] = [
+    rows: list[tuple[object, object]] = [
         ("GNSS lever arm (IMU → antenna)", _triple(mount.lever_arm_gnss, ("x", "y", "z"),
                                                    "m (body: x forward, y right, z down)")),
     ]
-    calibration = getattr(diagnostics, "calibration", None)
     if calibration is not None:
-        mounting.append(("GNSS lever arm the data show", ", ".join(
+        rows.append(("GNSS lever arm the data show", ", ".join(
             f"{a} {_number(float(v))} ± {_number(float(s))}" for a, v, s in
             zip("xyz", calibration.lever_arm, calibration.lever_arm_sigma, strict=True)) + " m (not applied)"))
-    graph = result.nav.graph_info
-    if graph is not None:  # --method graph: the calibration estimated with the trajectory (applied)
-        mounting.append(("GNSS lever arm the graph estimated", ", ".join(
-            f"{a} {_number(float(v))} ± {_number(float(s))}" for a, v, s in
-            zip("xyz", graph.lever_arm_m, graph.lever_arm_sigma_m, strict=True))
-            + " m (applied: the trajectory was solved with it)"))
-        mounting.append(("GNSS time offset the graph estimated",
-                         f"{_number(1e3 * float(graph.time_offset_s))} ± "
-                         f"{_number(1e3 * float(graph.time_offset_sigma_s))} ms (applied)"))
-    scale = graph.scale_factors if graph is not None else None
-    if scale is not None:
-        prior = float(scale.prior_sigma_ppm)
-        for name, values, sigmas in (("gyro", scale.gyro_ppm, scale.gyro_sigma_ppm),
-                                     ("accelerometer", scale.accel_ppm, scale.accel_sigma_ppm)):
-            mounting.append((f"{name} scale factors the graph estimated", ", ".join(
-                f"{a} {v:.0f} ± {s:.0f}" + (" (not observed)" if s > 0.8 * prior else "") for a, v, s in
-                zip("xyz", values, sigmas, strict=True))
-                + f" ppm (prior ± {prior:.0f} ppm; applied)"))
-    mounting += [
+    rows += _graph_calibration_rows(result.nav.graph_info)
+    rows += [
         ("camera lever arm (IMU → perspective centre)", _triple(mount.lever_arm_camera, ("x", "y", "z"), "m (body)")),
         ("boresight", _triple(mount.boresight, ("roll", "pitch", "yaw"), "deg (C_c_b = Rz(yaw) Ry(pitch) Rx(roll))")),
         ("GNSS σ given", _triple(cfg.gnss.sigma, ("N", "E", "U"), "m", 2)),
@@ -706,15 +612,35 @@ def _provenance(result: ProcessResult, inputs: dict[str, Path | str | None] | No
         ("camera trigger latency", f"{_number(float(cfg.camera.time_offset))} s"),
         ("projected CRS", cfg.output.crs or "— (geographic coordinates only)"),
     ]
-    return (_table(rows)
-            + "<h3>Input files</h3>" + _table(file_rows, header=("file", "path", "size", "SHA-256"))
-            + "<h3>Mounting and GNSS</h3>" + _table(mounting))
+    return rows
+
+
+def _graph_calibration_rows(graph: object | None) -> list[tuple[object, object]]:
+    """``--method graph``: the calibration estimated with the trajectory (applied)."""
+    if graph is None:
+        return []
+    rows: list[tuple[object, object]] = [
+        ("GNSS lever arm the graph estimated", ", ".join(
+            f"{a} {_number(float(v))} ± {_number(float(s))}" for a, v, s in
+            zip("xyz", graph.lever_arm_m, graph.lever_arm_sigma_m, strict=True))
+         + " m (applied: the trajectory was solved with it)"),
+        ("GNSS time offset the graph estimated", f"{_number(1e3 * float(graph.time_offset_s))} ± "
+         f"{_number(1e3 * float(graph.time_offset_sigma_s))} ms (applied)")]
+    scale = graph.scale_factors
+    if scale is not None:
+        prior = float(scale.prior_sigma_ppm)
+        for name, values, sigmas in (("gyro", scale.gyro_ppm, scale.gyro_sigma_ppm),
+                                     ("accelerometer", scale.accel_ppm, scale.accel_sigma_ppm)):
+            rows.append((f"{name} scale factors the graph estimated", ", ".join(
+                f"{a} {v:.0f} ± {s:.0f}" + (" (not observed)" if s > 0.8 * prior else "") for a, v, s in
+                zip("xyz", values, sigmas, strict=True))
+                + f" ppm (prior ± {prior:.0f} ppm; applied)"))
+    return rows
 
 
 def _gate_probability(gate: float) -> str:
-    from scipy.special import chdtr
-
-    return f"{100.0 * float(chdtr(3, gate)):.2f} %"
+    """The share of good fixes a chi-square gate on a 3-D innovation passes, in per cent."""
+    return f"{100.0 * chi2_cdf(gate, 3):.2f} %"
 
 
 def _version(package: str) -> str:
@@ -783,6 +709,59 @@ def flight_name(result: ProcessResult) -> str:
     return path.parent.name or path.stem
 
 
+def _separation_section(result: ProcessResult) -> str:
+    """The forward filter against the smoother (plot and table), or why there is none for the method."""
+    separation = _separation(result)
+    method = result.nav.method
+    if separation is not None:
+        return ("<p>The forward filter's solution minus the smoothed one, at the filter's covariance epochs, with "
+                "the ±2σ band the filter expects for it (σ² = forward variance − smoothed variance). Stretches "
+                "outside the band are where the forward pass and the smoother disagree: a bad fix, an outage, a "
+                "mis-modelled motion.</p>" + f'<img src="{separation}" alt="forward minus smoothed">'
+                + _separation_table(result))
+    if method == "ekf":
+        return ("<p>Method ekf is the forward filter alone: there is no smoothed solution to compare with (run "
+                "<code>--method rts</code> for it).</p>")
+    return (f"<p>Method {html.escape(method)} has no forward filter pass: the separation is available with "
+            "<code>--method rts</code>.</p>")
+
+
+def _plots(result: ProcessResult) -> dict[str, tuple[str, str | None]]:
+    """The plotted sections: section key -> (the note over the plot, the plot's data URI or None: not estimated)."""
+    return {
+        "accuracy": ("1-σ of the IMU position (north, east, up) and attitude, from the solution's covariance; GNSS "
+                     "outages shaded.", _accuracy(result)),
+        "track": ("Trajectory, GNSS fixes, exposures (red: in a GNSS outage) and rejected fixes.", _track(result)),
+        "innovations": ("Each GNSS fix's normalised innovation squared (χ² with 3 degrees of freedom when the model "
+                        "holds) against the gate.", _innovations(result)),
+        "position": ("Smoothed IMU position and velocity (σ: see “Estimated accuracy over time”).", _position(result)),
+        "attitude": ("Camera roll, pitch and yaw at each exposure (ZYX to NED; σ: see “Estimated accuracy over "
+                     "time”).", _attitude(result)),
+        "biases": ("Estimated gyro and accelerometer biases, body axes.", _biases(result)),
+        "yaw-offset": ("The POS unit's yaw origin as the data show it.", _yaw_offset(result)),
+    }
+
+
+def _page(result: ProcessResult, flight: str, verdict: Verdict, body: str) -> str:
+    """The whole HTML page around the sections' ``body``: title, subtitle, the units' note, the links."""
+    t0, t1 = float(result.log.time[0]), float(result.log.time[-1])
+    nav_links = " ".join(f'<a href="#{key}">{html.escape(title)}</a>' for key, title in SECTIONS)
+    names = f"{Path(result.log.path).name} + {Path(result.exposures.path).name}"
+    subtitle = (f"{names} · method {result.nav.method} · {utc_span(t0, t1, 0)} · {len(result.table)} frames · QC "
+                f"{verdict.short()} · georef {_version('georef')}")
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width, initial-scale=1">
+<title>georef quality report: flight {html.escape(flight)}</title>
+<style>{_CSS}</style></head><body>
+<h1>Quality report: flight {html.escape(flight)}</h1>
+<p class="subtitle">{html.escape(subtitle)}</p>
+<p class="note">Times are UTC (time of day); units metres, degrees, seconds; σ is one standard deviation.</p>
+<nav>{nav_links}</nav>
+{body}
+</body></html>
+"""
+
+
 def write_report(result: ProcessResult, path: Path | str, accuracy: dict[str, float] | None = None,
                  verdict: Verdict | None = None, inputs: dict[str, Path | str | None] | None = None,
                  command: str | None = None, flight: str | None = None) -> Path:
@@ -801,31 +780,7 @@ def write_report(result: ProcessResult, path: Path | str, accuracy: dict[str, fl
     flight = flight or flight_name(result)
     gaps = _imu_gaps(result)
     method = result.nav.method
-    separation = _separation(result)
-    if separation is not None:
-        separation_html = (
-            "<p>The forward filter's solution minus the smoothed one, at the filter's covariance epochs, with the "
-            "±2σ band the filter expects for it (σ² = forward variance − smoothed variance). Stretches outside the "
-            "band are where the forward pass and the smoother disagree: a bad fix, an outage, a mis-modelled "
-            "motion.</p>" + f'<img src="{separation}" alt="forward minus smoothed">' + _separation_table(result))
-    elif method == "ekf":
-        separation_html = ("<p>Method ekf is the forward filter alone: there is no smoothed solution to compare "
-                           "with (run <code>--method rts</code> for it).</p>")
-    else:
-        separation_html = (f"<p>Method {html.escape(method)} has no forward filter pass: the separation is "
-                           "available with <code>--method rts</code>.</p>")
-    plots = {
-        "accuracy": ("1-σ of the IMU position (north, east, up) and attitude, from the solution's covariance; GNSS "
-                     "outages shaded.", _accuracy(result)),
-        "track": ("Trajectory, GNSS fixes, exposures (red: in a GNSS outage) and rejected fixes.", _track(result)),
-        "innovations": ("Each GNSS fix's normalised innovation squared (χ² with 3 degrees of freedom when the model "
-                        "holds) against the gate.", _innovations(result)),
-        "position": ("Smoothed IMU position and velocity (σ: see “Estimated accuracy over time”).", _position(result)),
-        "attitude": ("Camera roll, pitch and yaw at each exposure (ZYX to NED; σ: see “Estimated accuracy over "
-                     "time”).", _attitude(result)),
-        "biases": ("Estimated gyro and accelerometer biases, body axes.", _biases(result)),
-        "yaw-offset": ("The POS unit's yaw origin as the data show it.", _yaw_offset(result)),
-    }
+    plots = _plots(result)
     body = []
     for key, title in SECTIONS:
         body.append(f'<section id="{key}"><h2>{html.escape(title)}</h2>')
@@ -838,7 +793,7 @@ def write_report(result: ProcessResult, path: Path | str, accuracy: dict[str, fl
         elif key == "flagged":
             body.append(_flagged(result.table))
         elif key == "separation":
-            body.append(separation_html)
+            body.append(_separation_section(result))
         elif key == "gnss":
             body.append(f'<img src="{_gnss_status(result, gaps)}" alt="GNSS status and IMU gaps">')
             body.append(_status_table(result) + _gaps_table(gaps))
@@ -851,22 +806,7 @@ def write_report(result: ProcessResult, path: Path | str, accuracy: dict[str, fl
             else:
                 body.append(f"<p>Not estimated by method {html.escape(method)}.</p>")
         body.append("</section>")
-    t0, t1 = float(result.log.time[0]), float(result.log.time[-1])
-    nav_links = " ".join(f'<a href="#{key}">{html.escape(title)}</a>' for key, title in SECTIONS)
-    names = f"{Path(result.log.path).name} + {Path(result.exposures.path).name}"
-    subtitle = (f"{names} · method {method} · {utc_span(t0, t1, 0)} · {len(result.table)} frames · QC "
-                f"{verdict.short()} · georef {_version('georef')}")
-    page = f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width, initial-scale=1">
-<title>georef quality report: flight {html.escape(flight)}</title>
-<style>{_CSS}</style></head><body>
-<h1>Quality report: flight {html.escape(flight)}</h1>
-<p class="subtitle">{html.escape(subtitle)}</p>
-<p class="note">Times are UTC (time of day); units metres, degrees, seconds; σ is one standard deviation.</p>
-<nav>{nav_links}</nav>
-{''.join(body)}
-</body></html>
-"""
+    page = _page(result, flight, verdict, "".join(body))
     with atomic_write(path) as handle:
         handle.write(page)
     return Path(path)

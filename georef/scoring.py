@@ -1,7 +1,7 @@
 """Scoring a solution on a real log, without truth: GNSS fixes withheld, and the autopilot's own attitude.
 
 A real log has no truth. Two references stand in for it (the benchmark ``benchmarks/real_logs.py`` and
-``tests/test_real_logs.py`` use them):
+``tests/end_to_end/test_real_logs.py`` use them):
 
 * **Withheld fixes** (:func:`withheld_windows`, :func:`score_withheld`): from the first GNSS speed of at least
   ``MIN_SPEED`` m/s, the fixes of ``HOLD_S`` of every ``PERIOD_S`` are withheld from the solution and compared with

@@ -1,7 +1,7 @@
 """Expensive test inputs computed once per test session, shared by pytest-xdist's workers.
 
 A module-scoped fixture runs once in *every* worker that executes one of its tests: with ``-n auto`` the
-Monte-Carlo fixtures of ``tests/test_ins.py`` were computed in full by each worker. :func:`computed_once` splits
+Monte-Carlo fixtures of ``tests/fusion/test_ins.py`` were computed in full by each worker. :func:`computed_once` splits
 the work instead: each item is claimed by the first worker to reach it (an exclusive file creation), computed
 there and pickled into the session's temporary folder, which every worker of the session shares; the others
 wait for the items they did not claim and load them. Without xdist the folder is the session's own.

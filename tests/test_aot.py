@@ -327,3 +327,44 @@ def test_build_kernels_without_pycc_is_a_user_error(tmp_path, monkeypatch):
     assert result.exit_code == 2, result.output
     assert "cannot compile ahead of time" in result.output and "numba range" in result.output
     assert not list(tmp_path.iterdir())
+
+
+_NO_PYCC_SCRIPT = """
+import json, sys
+sys.modules["numba.pycc"] = None  # a numba without pycc: `from numba.pycc import CC` raises ImportError
+import numpy as np
+from georef import aot
+try:
+    import numba.pycc
+    pycc = "importable"
+except ImportError:
+    pycc = "missing"
+t_imu = np.arange(0.0, 20.0, 0.02)
+t_fix = np.arange(0.0, 20.0, 1.0)
+axis = aot.load("axis")
+states = axis.axis_filter(t_imu, np.zeros((len(t_imu), 3)), t_fix, np.zeros((len(t_fix), 3)),
+                          np.ones((len(t_fix), 3)), np.zeros(3), np.full(3, 1e-2), np.full(3, 1e-4), 16.0, 5)
+try:
+    aot.build("axis")
+    build = "built"
+except aot.BuildUnavailableError as exc:
+    build = str(exc)
+print(json.dumps({"pycc": pycc, "loaded": aot.LOADED["axis"], "fallback": aot.FALLBACK.get("axis"),
+                  "finite": bool(np.isfinite(states[0][-1]).all()), "fixes used": int((states[-1] == 1).sum()),
+                  "build": build}))
+"""
+
+
+def test_runs_without_pycc_fall_back_to_the_jit(tmp_path):
+    """A numba without numba.pycc and no build (what numba's removal of pycc leaves): the kernels load from the
+    JIT and run, the reason is kept in ``aot.FALLBACK``, and a build attempt says pycc is missing and that the
+    JIT serves meanwhile, without writing anything."""
+    result = subprocess.run([sys.executable, "-c", _NO_PYCC_SCRIPT], capture_output=True, text=True, check=True,
+                            env=_environment(**{aot.DIR_VARIABLE: str(tmp_path)}))
+    found = json.loads(result.stdout)
+    assert (found["pycc"], found["loaded"], found["finite"]) == ("missing", "jit", True)
+    assert "no ahead-of-time build of the 'axis' kernel" in found["fallback"]
+    assert "there is no build of it there" in found["fallback"]
+    assert found["fixes used"] == 20
+    assert "cannot compile ahead of time" in found["build"] and "JIT meanwhile" in found["build"]
+    assert not list(tmp_path.iterdir())

@@ -212,3 +212,17 @@ def test_solvers_narrow_a_whole_configuration_to_their_sections(flight_dir, flig
     np.testing.assert_array_equal(whole.att_sigma, narrowed.att_sigma)
     np.testing.assert_array_equal(solve_axis(log, flight_defaults).r_e,
                                   solve_axis(log, AxisSettings.of(flight_defaults)).r_e)
+
+
+def test_config_round_trip_and_unknown_keys(tmp_path):
+    cfg = ProcessingConfig().updated(lever_arm_gnss=(0.5, 0.1, -1.6), boresight=(0.1, 0.2, 0.3), crs="EPSG:3765",
+                                     pos_columns={"lat": "Lat"})
+    path = tmp_path / "flight.toml"
+    path.write_text(config_to_toml(cfg))
+    assert load_config(path) == cfg
+    path.write_text("[mounting]\nlever_arm = [1, 2, 3]\n")
+    with pytest.raises(InputError, match="mounting.lever_arm"):
+        load_config(path)
+    path.write_text("[mounting\n")
+    with pytest.raises(InputError, match="not valid TOML"):
+        load_config(path)

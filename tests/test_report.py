@@ -322,7 +322,7 @@ def test_process_refuses_a_device_or_protected_output_before_processing(tmp_path
     try:
         os.mknod(null, stat.S_IFCHR | 0o666, os.makedev(1, 3))
     except PermissionError:
-        return  # not root: the FIFO above took the same path (tests/test_io_misc.py says so when it skips)
+        return  # not root: the FIFO above took the same path (tests/io/test_atomic.py says so when it skips)
     result = CliRunner().invoke(app, ["process", str(DATA / "POS.txt"), str(DATA / "Kamera.txt"), "-o", str(null)])
     assert result.exit_code == 2 and "null: is a character device, not a regular file" in result.output
     assert stat.S_ISCHR(os.lstat(null).st_mode)

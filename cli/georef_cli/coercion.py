@@ -10,7 +10,7 @@ choices, and lists of these) the conversion of a plain command-line string is pl
 (:func:`typer._param_types.coerce_cli_choice`). :class:`PlainCoercionCommand` and :class:`PlainCoercionGroup` (the
 command and group classes of georef's typer app) give each such parameter that conversion; a value that is not plain
 (``"1_000"``, ``" 2 "``, ``"1.0"`` for an int, a choice that matches nothing, anything that is not a string) goes to
-typer's own pydantic conversion, so the results and the error messages stay typer's. ``tests/test_cli_coercion.py``
+typer's own pydantic conversion, so the results and the error messages stay typer's. ``tests/cli/test_coercion.py``
 checks the two agree, value by value, for every parameter of every command, and that ``georef process`` no longer
 imports pydantic.
 

@@ -1,6 +1,7 @@
-"""The command line's hand-offs: what ``process`` and ``fuse`` check before processing and write after it for
-geotagged image copies (``--images``, ``--export images:DIR``), SBETs (``--export sbet:FILE``), ROS bags (``--bag``)
-and RTKLIB/Emlid solutions on the IMU's clock (``--time-scale``). The formats themselves are in ``georef.io``."""
+"""The command line's hand-offs: what ``process`` and ``fuse`` write after processing for geotagged image copies
+(``--images``, ``--export images:DIR``) and SBETs (``--export sbet:FILE``), with RTKLIB/Emlid solutions on the
+IMU's clock (``--time-scale``). What they check before processing is :func:`georef.pipeline.preflight`'s; the
+formats themselves are in ``georef.io``."""
 
 from __future__ import annotations
 
@@ -8,37 +9,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import typer
 
 from .output import is_stdout, write_target
-
-
-def check_image_request(images: Path | None, targets: list[Path], clock_offset: float | None,
-                         frames: Any, image_names: str | None = None) -> None:
-    """Before processing: --images and --export images:DIR come together, DIR is not the photos' folder, the
-    EGM96 grid is there, the clock offset is a number and not given with image names (``image_names``: the
-    --image-names option or flight.toml's, whose names some photo must have)."""
-    if not targets:
-        for option, value in (("--images", images), ("--camera-clock-offset", clock_offset)):
-            if value is not None:
-                raise typer.BadParameter(f"{option} is for --export images:DIR (geotagged copies of the photos), "
-                                         "and no images export is asked for")
-        return
-    if clock_offset is not None and not np.isfinite(clock_offset):
-        raise typer.BadParameter(f"--camera-clock-offset {clock_offset}: give the camera clock minus UTC in seconds")
-    if clock_offset is not None and image_names:
-        # named photos are paired by name; their offset is measured from the pairs, so a given one would be unused
-        raise typer.BadParameter(f"--camera-clock-offset matches photos to frames by capture time, and image names "
-                                 f"({image_names!r}, --image-names or image_names in the configuration) pair them by "
-                                 "name; the offset is then measured from the named pairs and shown. Give one of them")
-    from georef.io.image_export import check_image_export
-
-    for target in targets:
-        if not str(target) or str(target) == ".":
-            raise typer.BadParameter("--export images:DIR: name the folder for the copies")
-        check_image_export(images, target, frames, image_names)
-    if len({t.resolve() for t in targets}) < len(targets):
-        raise typer.BadParameter("--export images:DIR is asked for twice with one folder")
 
 
 def export_images(result: Any, images: Path, target: Path, clock_offset: float | None, utc_date: str | None,
@@ -75,42 +47,6 @@ def with_image_checks(verdict: Any, exports: list[Any]) -> Any:
     """The run's QC verdict with the images checks of ``exports`` (photos matched by name: docs/images.md)."""
     checks = [check for check in (done.check() for done in exports) if check is not None]
     return type(verdict)((*verdict.checks, *checks)) if checks else verdict
-
-
-def check_sbet_request(specs: list[Any], utc_date: str | None, rate: float | None, dated: bool) -> None:
-    """Before processing: an SBET goes to a file (two, in fact), its rate makes sense, ``--utc-date`` is a date
-    with a GPS week, and it is given where nothing else can date the run (``dated``: the inputs may date
-    themselves, an autopilot log, a bag or imu.csv, checked once read: :func:`georef.io.sbet.run_clock`)."""
-    from georef.io.sbet import parse_utc_date
-
-    if not specs:
-        if rate is not None:
-            raise typer.BadParameter("--sbet-rate is the rate of --export sbet:FILE, and no SBET is asked for")
-        return
-    for spec in specs:
-        if is_stdout(spec.path):
-            raise typer.BadParameter("an SBET is written with its smrmsg file beside it: give a file, not -")
-    if rate is not None and not (np.isfinite(rate) and rate > 0):
-        raise typer.BadParameter(f"--sbet-rate {rate}: give a positive rate in Hz")
-    if utc_date is not None:
-        parse_utc_date(utc_date)  # a date, after the GPS epoch
-    elif not dated:
-        raise typer.BadParameter("--export sbet needs GPS time, and POS.txt and imu.csv give UTC seconds of a day "
-                                 "they do not name: add --utc-date YYYY-MM-DD")
-
-
-def fuse_sbet_specs(export: list[str] | None, output: Path) -> list[Any]:
-    """``georef fuse --export``: SBETs only (the other formats are of an EO table, which fuse does not make)."""
-    from georef.io.exports import ExportSpec, check_exports, parse_export
-
-    for text in export or []:  # before parse_export, whose error would list the EO table's formats as valid
-        if not text.startswith("sbet:"):
-            raise typer.BadParameter(f"georef fuse exports its trajectory as sbet:FILE only (an Applanix SBET), "
-                                     f"not --export {text}; the EO table's formats and images:DIR are georef "
-                                     "process's")
-    specs = [parse_export(text) for text in export or []]
-    check_exports([ExportSpec("csv", output), *specs] if not is_stdout(output) else specs, None)
-    return specs
 
 
 def solution_scale(files: dict[str, Path | None], imu_time: Any, time_scale: str, bag: bool) -> Any:
@@ -172,34 +108,3 @@ def process_sbet_clock(result: Any, utc_date: str | None, files: dict[str, Path 
     return sbet_clock(result.log.time, utc_date, {"--gnss": files.get("gnss"), "--events": files.get("events")},
                       time_scale, bag=bag, imu_label=label,
                       log_day_start=None if flight is None else float(flight.day_start_utc))
-
-
-def bag_or_files(bag: Path | None, imu_topic: str | None, gnss_topic: str | None,
-                  files: dict[str, Path | None]) -> None:
-    """--bag takes the place of ``files`` (option -> value: --imu, --gnss); --imu-topic/--gnss-topic need it."""
-    if bag is not None:
-        given = [option for option, value in files.items() if value is not None]
-        if given:
-            raise typer.BadParameter(f"--bag takes the place of {' and '.join(files)}: give either the bag or "
-                                     f"{' and '.join(files)}, not both ({', '.join(given)} given)")
-        return
-    for option, value in (("--imu-topic", imu_topic), ("--gnss-topic", gnss_topic)):
-        if value is not None:
-            raise typer.BadParameter(f"{option} picks a topic of --bag, and no --bag is given")
-    missing = [option for option, value in files.items() if value is None]
-    if missing:
-        raise typer.BadParameter(f"give {' and '.join(files)}, or --bag; missing {', '.join(missing)}")
-
-
-def check_time_scale(time_scale: str, files: dict[str, Path | None]) -> None:
-    """``--time-scale`` puts an RTKLIB/Emlid .pos or _events.pos on the IMU's clock: refused when none of ``files``
-    (option -> value) is one, where it would change nothing."""
-    if time_scale == "auto":
-        return
-    from georef.io.rtklib import is_rtklib_pos
-
-    if not any(path is not None and is_rtklib_pos(path) for path in files.values()):
-        raise typer.BadParameter(f"--time-scale {time_scale} puts an RTKLIB/Emlid .pos or _events.pos on the IMU's "
-                                 f"clock, and {' and '.join(files)} hold none (a csv's times are on the IMU's clock "
-                                 "already)")
-

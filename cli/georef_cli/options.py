@@ -14,18 +14,13 @@ from typing import Annotated, Any
 
 import typer
 
-from georef.config import METHODS
+from georef.config import METHODS, VEHICLE_KINDS
 from georef.imu_errors import presets_help
-
-#: ``-`` as a file name: standard output (``-o -``, ``--summary-json -``)
-STDOUT = "-"
 
 #: the methods of ``georef fuse`` (full-state filters on generic inputs)
 FUSE_METHODS = ("rts", "ekf", "graph")
 #: the filters of ``georef attitude``
 ATTITUDE_METHODS = ("complementary", "kf", "mekf", "ukf")
-#: the ``--vehicle`` values (non-holonomic constraints)
-VEHICLES = ("auto", "ground", "air")
 #: the ``--time-scale`` values: georef.io.pos_time_scale.CHOICES, written out here because importing that module
 #: imports pyproj (0.3 s on every command)
 TIME_SCALES = ("auto", "utc-day", "gps-week", "unix")
@@ -66,7 +61,7 @@ def method_option(what: str) -> Any:
 Method = choice("Method", METHODS)
 FuseMethodChoice = choice("FuseMethod", FUSE_METHODS)
 AttitudeMethodChoice = choice("AttitudeMethod", ATTITUDE_METHODS)
-VehicleChoice = choice("Vehicle", VEHICLES)
+VehicleChoice = choice("Vehicle", VEHICLE_KINDS)
 TimeScaleChoice = choice("TimeScale", TIME_SCALES)
 
 
@@ -160,3 +155,55 @@ CameraClockOffset = Annotated[float | None, typer.Option(
     "--camera-clock-offset", help="Camera clock minus UTC in seconds (e.g. 7200.25 for a clock on UTC+2 running "
                                   "0.25 s fast), for matching photos to exposures by capture time when the "
                                   "triggering is too regular to find it (default: estimated and reported).")]
+
+# georef process's own options and arguments (one parameter each, so its signature stays one line per option)
+PosArgument = Annotated[Path | None, typer.Argument(
+    help="The flight's log: an autopilot log (ArduPilot .bin or .log, PX4 .ulg; the format is read from the "
+         "content, gzip too) with its camera events, or a POS unit's POS.txt (with CAMERA). Leave it out with "
+         "--imu/--gnss/--events or --bag/--events.", show_default=False)]
+CameraArgument = Annotated[Path | None, typer.Argument(
+    help="POS.txt's exposure times: Kamera.txt, or the camera's raw log (needs --camera-utc-offset).",
+    show_default=False)]
+EoOutput = Annotated[Path | None, output_option("EO table to write (default eo.csv); a .kml, .geojson or geo.txt "
+                                                "name writes that format.")]
+OutputFormat = Annotated[str | None, typer.Option(
+    "--format", help="Format of -o: csv (the EO table), metashape, pix4d, odm (geo.txt), parge, geojson or kml; "
+                     "metashape/pix4d/odm need --crs. Default: from -o's extension, else csv.")]
+ProcessExport = Annotated[list[str] | None, typer.Option("--export", help="Also write FORMAT:FILE (metashape:ms.csv, "
+                                                         "odm:geo.txt) or FILE with a .kml/.geojson/.csv extension; "
+                                                         "repeatable. sbet:FILE writes the trajectory as an Applanix "
+                                                         "SBET with its smrmsg_<name>.out (docs/sbet.md).")]
+Height = Annotated[str | None, typer.Option("--height", help="Heights of the exports: ellipsoidal (WGS 84, "
+                                            "default) or orthometric (EGM96 from PROJ's grid, or the vertical "
+                                            "CRS of a compound --crs such as EPSG:3765+5773).")]
+ImageNamesOption = Annotated[str | None, typer.Option("--image-names", help="Image file names: a pattern such as "
+                                                      "IMG_{frame:04d}.JPG, or a CSV of frame,name.")]
+CameraLeverArm = Annotated[str | None, typer.Option(
+    help="IMU -> camera perspective centre lever arm X,Y,Z in metres, body frame.")]
+Boresight = Annotated[str | None, typer.Option(help="Camera boresight R,P,Y in degrees (C_c_b = Rz(Y) Ry(P) Rx(R)).")]
+GnssRate = Annotated[float | None, typer.Option(help="GNSS fix rate in Hz (default 1).")]
+CameraUtcOffset = Annotated[float | None, typer.Option(
+    help="UTC offset of the camera's local clock in hours (raw camera log only), e.g. 2 for UTC+2.")]
+CameraTimeOffset = Annotated[float | None, typer.Option(
+    help="Camera trigger latency in seconds, added to every exposure time (the exposure happened this long "
+         "after its logged time); default 0.")]
+CameraTimeSigma = Annotated[float | None, typer.Option(
+    help="Standard deviation in seconds of every exposure time, after --camera-time-offset; it widens each "
+         "camera position's sigma by the speed times it. Default: each source's own (0.002 s for a camera's "
+         "feedback, 0.1 s for a trigger command, an events.csv time_sigma column).")]
+Crs = Annotated[str | None, typer.Option(
+    help="Projected CRS for easting/northing columns, e.g. EPSG:3765 (HTRS96/TM), or a compound CRS with its "
+         "height system, e.g. EPSG:3765+5773 (with --height orthometric).")]
+AttitudeSource = Annotated[str | None, typer.Option(
+    help="Roll and pitch from the POS unit ('unit', default) or recomputed from the raw IMU ('imu').")]
+Report = Annotated[Path | None, typer.Option(
+    help="Also write the quality report here: one self-contained HTML file (docs/report.md).")]
+
+
+def settings_given(table: dict[str, tuple[str, ...]], values: dict[str, Any]) -> dict[str, Any]:
+    """The flight.toml settings a command's options give: ``table`` maps a flight.toml key to (option, parameter
+    name[, unit of its three numbers]), ``values`` holds the parameters; :class:`georef.preflight.OptionValue`
+    each, in ``table``'s order (the order they are checked in)."""
+    from georef.preflight import OptionValue
+
+    return {key: OptionValue(option, plain(values[name]), *unit) for key, (option, name, *unit) in table.items()}

@@ -24,13 +24,7 @@ from typing import Any
 import numpy as np
 
 from georef.io.atomic import atomic_write
-
-from .options import STDOUT
-
-
-def is_stdout(path: Path | str | None) -> bool:
-    """``-``: standard output."""
-    return path is not None and str(path) == STDOUT
+from georef.option_values import is_stdout
 
 
 def write_target(path: Path, writer: Callable[[Path], Any]) -> None:

@@ -28,6 +28,7 @@ from georef.frames.kernels import (
     quat_mul_into,
     quat_normalise,
     quat_to_dcm,
+    trapezoid_increment,
 )
 
 #: the specific-force magnitude [m/s^2] an unaccelerated IMU reads, against which the accelerometer gate is set
@@ -130,6 +131,33 @@ def _right_multiply(q: np.ndarray, rotvec: np.ndarray, dq: np.ndarray, work: np.
 
 
 @njit(cache=True)
+def _propagate_covariance(P, R, dt, gyro_noise, bias_walk, A, C):
+    """The error covariance (6, 6) over one step, in place: ``F = [[R^T, -dt I], [0, I]]`` with ``R`` the step's
+    rotation, plus the gyro noise [rad/s] per sample and the bias walk [rad/s/sqrt(s)] over ``dt`` [s]; ``A``,
+    ``C`` (3, 3): work arrays."""
+    # P_aa' = R^T P_aa R - dt (R^T P_ab + P_ba R) + dt^2 P_bb ; P_ab' = R^T P_ab - dt P_bb
+    for i in range(3):
+        for j in range(3):
+            A[i, j] = R[0, i] * P[0, j] + R[1, i] * P[1, j] + R[2, i] * P[2, j] - dt * P[3 + i, j]
+    for i in range(3):
+        for j in range(3):
+            P_ab = R[0, i] * P[0, 3 + j] + R[1, i] * P[1, 3 + j] + R[2, i] * P[2, 3 + j] - dt * P[3 + i, 3 + j]
+            C[i, j] = P_ab  # temporarily hold the new cross block
+    for i in range(3):
+        for j in range(i, 3):
+            value = (A[i, 0] * R[0, j] + A[i, 1] * R[1, j] + A[i, 2] * R[2, j]) - dt * C[i, j]
+            if i == j:
+                value += gyro_noise * gyro_noise * dt * dt
+            P[i, j] = value
+            P[j, i] = value
+    for i in range(3):
+        for j in range(3):
+            P[i, 3 + j] = C[i, j]
+            P[3 + j, i] = C[i, j]
+        P[3 + i, 3 + i] += bias_walk * bias_walk * dt
+
+
+@njit(cache=True)
 def mekf(t, gyro, accel, mag, mag_reference, q0, b0, P0, gyro_noise, bias_walk, accel_sigma, mag_sigma,
          accel_gate, use_mag, rate_gate):
     """Run the MEKF over all samples (no allocation inside the loop).
@@ -163,31 +191,11 @@ def mekf(t, gyro, accel, mag, mag_reference, q0, b0, P0, gyro_noise, bias_walk, 
     for k in range(n):
         if k > 0:
             dt = t[k] - t[k - 1]
-            for i in range(3):
-                step[i] = (0.5 * (gyro[k, i] + gyro[k - 1, i]) - b[i]) * dt
+            trapezoid_increment(gyro[k - 1], gyro[k], b, dt, step)
             # R(step); F = [[R^T, -dt I], [0, I]]
             quat_from_rotvec_into(step, dq)
             quat_to_dcm(dq, R)
-            # P_aa' = R^T P_aa R - dt (R^T P_ab + P_ba R) + dt^2 P_bb ; P_ab' = R^T P_ab - dt P_bb
-            for i in range(3):
-                for j in range(3):
-                    A[i, j] = R[0, i] * P[0, j] + R[1, i] * P[1, j] + R[2, i] * P[2, j] - dt * P[3 + i, j]
-            for i in range(3):
-                for j in range(3):
-                    P_ab = R[0, i] * P[0, 3 + j] + R[1, i] * P[1, 3 + j] + R[2, i] * P[2, 3 + j] - dt * P[3 + i, 3 + j]
-                    C[i, j] = P_ab  # temporarily hold the new cross block
-            for i in range(3):
-                for j in range(i, 3):
-                    value = (A[i, 0] * R[0, j] + A[i, 1] * R[1, j] + A[i, 2] * R[2, j]) - dt * C[i, j]
-                    if i == j:
-                        value += gyro_noise * gyro_noise * dt * dt
-                    P[i, j] = value
-                    P[j, i] = value
-            for i in range(3):
-                for j in range(3):
-                    P[i, 3 + j] = C[i, j]
-                    P[3 + j, i] = C[i, j]
-                P[3 + i, 3 + i] += bias_walk * bias_walk * dt
+            _propagate_covariance(P, R, dt, gyro_noise, bias_walk, A, C)
             _right_multiply(q, step, dq, work)
         norm_f = math.sqrt(accel[k, 0] ** 2 + accel[k, 1] ** 2 + accel[k, 2] ** 2)
         rate = math.sqrt(gyro[k, 0] ** 2 + gyro[k, 1] ** 2 + gyro[k, 2] ** 2)

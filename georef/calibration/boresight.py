@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
+from georef.distributions import chi2_isf
 from georef.frames import euler_to_dcm, wrap_pi
 from georef.frames.calibration import (
     accel_bias_tilt_covariance_camera,
@@ -773,7 +773,7 @@ def _consistency(strips: Strips, fits: StripFits, boresight: list[Component], le
     advice: list[str] = []
     for label, fit in (("attitude", fits.attitude_fit), ("position", fits.position_fit)):
         if fit.dof > 0:
-            limit = float(stats.chi2.ppf(CHI2_LEVEL, fit.dof))
+            limit = chi2_isf(1.0 - CHI2_LEVEL, fit.dof)
             if fit.chi2 > limit:
                 problems.append(f"{label} residuals of the strips are inconsistent with the EO's sigmas: chi-square "
                                 f"{fit.chi2:.1f} > {limit:.1f} ({fit.dof} dof)")

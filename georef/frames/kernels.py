@@ -2,7 +2,7 @@
 
 These are the same equations as :mod:`georef.frames.earth`, :mod:`georef.frames.rotations` and
 :mod:`georef.frames.mounting` (which are vectorised over arrays for module boundaries), written per sample so
-compiled loops can call them. ``tests/test_frames_kernels.py`` checks that both forms agree to rounding error;
+compiled loops can call them. ``tests/frames/test_kernels.py`` checks that both forms agree to rounding error;
 nothing outside ``georef/frames`` writes these formulas again.
 """
 
@@ -16,6 +16,15 @@ from numba import njit
 from georef.frames.earth import GAMMA_E, OMEGA_IE, SOMIGLIANA_K, WGS84_A, WGS84_B, WGS84_E2, WGS84_F, WGS84_GM
 
 _M_GRAV = OMEGA_IE**2 * WGS84_A**2 * WGS84_B / WGS84_GM
+
+
+@njit(cache=True)
+def trapezoid_increment(prev: np.ndarray, cur: np.ndarray, bias: np.ndarray, dt: float, out: np.ndarray) -> None:
+    """Bias-corrected increment (3,) over an interval of ``dt`` [s] from the point samples at its ends, by the
+    trapezoid rule: ``out = (½(prev + cur) - bias) dt``; gyro samples and bias [rad/s] give the angle increment
+    [rad], accelerometer ones [m/s^2] the velocity increment [m/s] (body frame)."""
+    for i in range(3):
+        out[i] = (0.5 * (prev[i] + cur[i]) - bias[i]) * dt
 
 
 @njit(cache=True)

@@ -164,7 +164,7 @@ def slerp_dcm(times: ArrayLike, C: ArrayLike, new_times: ArrayLike) -> Array:
 
     Spherical linear interpolation between the bracketing samples: ``q = q0 ⊗ exp(s log(q0* ⊗ q1))`` on
     Hamilton quaternions, the shorter way round. ``new_times`` must lie inside ``[times[0], times[-1]]``.
-    Equal to scipy's ``Slerp`` (``tests/test_rotations.py``); written on georef's quaternions so that the
+    Equal to scipy's ``Slerp`` (``tests/frames/test_rotations.py``); written on georef's quaternions so that the
     command line does not pay scipy.spatial's import time.
     """
     times = np.asarray(times, dtype=float)

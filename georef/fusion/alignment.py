@@ -323,7 +323,42 @@ def align(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, fix_time: np.ndarr
     gap (``gaps``: (row before, row after) pairs): a gap in the first ``GAP_SKIP_S`` seconds moves the start after
     it, and the window ends before the next one. Raises ``ValueError`` when fewer than 6 fixes follow the start.
     """
-    t0_fix = fix_time[0] if start_time is None else start_time
+    row0, last_row = _start_rows(t, fix_time[0] if start_time is None else start_time, gaps)
+    first = int(np.searchsorted(fix_time, t[min(row0, len(t) - 1)], side="left"))
+    if row0 >= len(t) - 2 or len(fix_time) - first < 6:
+        raise ValueError("fewer than 6 GNSS fixes inside the IMU span after the start")
+    lat0, lon0, h0 = float(lat[first]), float(lon[first]), float(height[first])
+    r_all = _tangent_frame(lat0, lon0, h0, lat[first:], lon[first:], height[first:])
+    all_fixes = _Fixes(time=fix_time[first:], r=r_all, sigma=sigma_neu[first:],
+                       v=_fix_velocity(fix_time[first:], r_all))
+    static_bias, _ = _static_start(t, gyro, accel, row0, all_fixes, lat0)
+    guess_g = np.zeros(3) if bias_g is None else np.asarray(bias_g, float).copy()
+    if bias_g is None and static_bias is not None:
+        guess_g = static_bias
+    guess_a = np.zeros(3) if bias_a is None else np.asarray(bias_a, float).copy()
+    prior = tuple(datasheet_bias_sigma) if datasheet_bias_sigma is not None else (PRIOR_GYRO_BIAS, PRIOR_ACCEL_BIAS)
+    imu = _Imu(t=t, gyro=gyro, accel=accel, row0=row0, lever=np.asarray(lever_arm, dtype=float))
+    tried = _growing_windows(imu, all_fixes, min(t[last_row], all_fixes.time[-1]), lat0, h0, guess_g, guess_a, prior)
+    at_start = [w for w in tried if w.start_sigma < HEADING_SIGMA_OK]
+    later = [w for w in tried if w.heading_sigma < HEADING_SIGMA_OK]
+    best = at_start[0] if at_start else later[0] if later else tried[-1]
+    # the IMU's geodetic position at the start row from the tangent-frame position
+    r_e = geodetic_to_ecef(lat0, lon0, h0) + C_n_e(lat0, lon0) @ best.r0
+    lat_s, lon_s, h_s = ecef_to_geodetic(r_e[None, :])
+    # tangent frame -> local NED at the start position (they differ by the small angle of the displacement)
+    C_t_n = C_e_n(lat_s[0], lon_s[0]) @ C_n_e(lat0, lon0)
+    return Alignment(start_row=row0, position=np.array([lat_s[0], lon_s[0], h_s[0]]), v_n=C_t_n @ best.v0,
+                     C_b_n=C_t_n @ best.C0, gyro_bias=best.bias_g, accel_bias=best.bias_a,
+                     covariance=filter_order(best.cov), heading_source="motion",
+                     observable=bool(best.heading_sigma < HEADING_SIGMA_OK),
+                     heading_sigma=float(best.heading_sigma), heading_time=float(best.heading_time),
+                     window=(float(t[row0]), float(best.t_end)), variance_factor=best.variance_factor,
+                     bias_prior_sigma=(float(best.prior[0]), float(best.prior[1])))
+
+
+def _start_rows(t: np.ndarray, t0_fix: float, gaps: list[tuple[int, int]] | None) -> tuple[int, int]:
+    """The first row of the alignment (at or after ``t0_fix`` [s], moved past an IMU gap within ``GAP_SKIP_S``)
+    and the last row it may use (before the next gap)."""
     row0 = int(np.searchsorted(t, t0_fix, side="left"))
     gap_after = np.array([b for _, b in (gaps or [])], dtype=int)  # first row after each gap
     early = gap_after[(gap_after > row0) & (t[np.minimum(gap_after, len(t) - 1)] <= t[min(row0, len(t) - 1)]
@@ -332,24 +367,51 @@ def align(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, fix_time: np.ndarr
         row0 = int(early[-1])
     later_gaps = gap_after[gap_after > row0]
     last_row = int(later_gaps[0]) - 1 if len(later_gaps) else len(t) - 1
-    first = int(np.searchsorted(fix_time, t[min(row0, len(t) - 1)], side="left"))
-    if row0 >= len(t) - 2 or len(fix_time) - first < 6:
-        raise ValueError("fewer than 6 GNSS fixes inside the IMU span after the start")
-    lat0, lon0, h0 = float(lat[first]), float(lon[first]), float(height[first])
-    r_all = _tangent_frame(lat0, lon0, h0, lat[first:], lon[first:], height[first:])
-    all_fixes = _Fixes(time=fix_time[first:], r=r_all, sigma=sigma_neu[first:],
-                       v=_fix_velocity(fix_time[first:], r_all))
-    omega_ie = earth_rate_n(lat0)
-    lever = np.asarray(lever_arm, dtype=float)
-    static_bias, _ = _static_start(t, gyro, accel, row0, all_fixes, lat0)
-    guess_g = np.zeros(3) if bias_g is None else np.asarray(bias_g, float).copy()
-    if bias_g is None and static_bias is not None:
-        guess_g = static_bias
-    guess_a = np.zeros(3) if bias_a is None else np.asarray(bias_a, float).copy()
+    return row0, last_row
 
-    t_end_data = min(t[last_row], all_fixes.time[-1])
+
+@dataclass(frozen=True)
+class _WindowFit:
+    """One window's fit: the start attitude ``C0`` (body to tangent frame), position ``r0`` [m] and velocity ``v0``
+    [m/s] in the tangent frame, the biases [rad/s, m/s^2], the covariance (FIT_N, FIT_N) and a-posteriori variance
+    factor; the window's ``fixes`` and end ``t_end`` [s]; the smallest heading sigma [rad] over its fixes and the
+    time [s] of that fix, the heading sigma at the start; the bias prior sigmas it used."""
+
+    C0: np.ndarray
+    r0: np.ndarray
+    v0: np.ndarray
+    bias_g: np.ndarray
+    bias_a: np.ndarray
+    cov: np.ndarray
+    variance_factor: float
+    fixes: _Fixes
+    heading_sigma: float
+    heading_time: float
+    t_end: float
+    start_sigma: float
+    prior: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class _Imu:
+    """The IMU rows an alignment integrates: times [s], gyro [rad/s] and specific force [m/s^2] (body), the start
+    row ``row0``, and the body lever arm IMU -> antenna [m]."""
+
+    t: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+    row0: int
+    lever: np.ndarray
+
+
+def _growing_windows(imu: _Imu, all_fixes: _Fixes, t_end_data: float, lat0: float, h0: float, guess_g: np.ndarray,
+                     guess_a: np.ndarray, prior: tuple[float, float]) -> list[_WindowFit]:
+    """Fits over windows of :data:`WINDOWS_S` from the start row and then all the data (fixes in the tangent frame
+    at ``lat0`` [rad], ``h0`` [m]; the data end at ``t_end_data`` [s]), until one knows the heading at the start.
+    Raises ``ValueError`` when no window has 6 fixes."""
+    t, row0 = imu.t, imu.row0
+    omega_ie = earth_rate_n(lat0)
     tried = []
-    prior = tuple(datasheet_bias_sigma) if datasheet_bias_sigma is not None else (PRIOR_GYRO_BIAS, PRIOR_ACCEL_BIAS)
     for length in (*WINDOWS_S, np.inf):
         t_end = min(t[row0] + length, t_end_data)
         inside = all_fixes.time <= t_end
@@ -358,34 +420,21 @@ def align(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, fix_time: np.ndarr
         fixes = _Fixes(time=all_fixes.time[inside], r=all_fixes.r[inside], sigma=all_fixes.sigma[inside],
                        v=all_fixes.v[inside])
         known = _known_terms(fixes, t[row0], lat0, h0, omega_ie)
-        win = _Window(t, gyro, accel, row0, fixes, lever, known, omega_ie)
+        win = _Window(t, imu.gyro, imu.accel, row0, fixes, imu.lever, known, omega_ie)
         # a prior rejected by a shorter window stays rejected for the longer ones
         solution, prior = _fit_window(win, guess_g, guess_a, prior)
         C0, r0, v0, b_g_fit, b_a_fit, cov, vf, pre = solution
         sig = _heading_sigmas(C0, pre, cov)
         k_best = int(np.argmin(sig))
-        tried.append((C0, r0, v0, b_g_fit, b_a_fit, cov, vf, fixes, sig[k_best], fixes.time[k_best], t_end, sig[0],
-                      prior))
+        tried.append(_WindowFit(C0=C0, r0=r0, v0=v0, bias_g=b_g_fit, bias_a=b_a_fit, cov=cov, variance_factor=vf,
+                                fixes=fixes, heading_sigma=sig[k_best], heading_time=fixes.time[k_best], t_end=t_end,
+                                start_sigma=sig[0], prior=prior))
         # done when the heading is known at the start; a window that knows it only later is kept in reserve
         if sig[0] < HEADING_SIGMA_OK or t_end >= t_end_data:
             break
     if not tried:
         raise ValueError("fewer than 6 GNSS fixes inside the IMU span after the start")
-    at_start = [w for w in tried if w[11] < HEADING_SIGMA_OK]
-    later = [w for w in tried if w[8] < HEADING_SIGMA_OK]
-    best = at_start[0] if at_start else later[0] if later else tried[-1]
-    C0, r0, v0, b_g_fit, b_a_fit, cov, vf, fixes, heading_sigma, heading_time, t_end, _, prior = best
-    # the IMU's geodetic position at the start row from the tangent-frame position
-    r_e = geodetic_to_ecef(lat0, lon0, h0) + C_n_e(lat0, lon0) @ r0
-    lat_s, lon_s, h_s = ecef_to_geodetic(r_e[None, :])
-    # tangent frame -> local NED at the start position (they differ by the small angle of the displacement)
-    C_t_n = C_e_n(lat_s[0], lon_s[0]) @ C_n_e(lat0, lon0)
-    return Alignment(start_row=row0, position=np.array([lat_s[0], lon_s[0], h_s[0]]), v_n=C_t_n @ v0,
-                     C_b_n=C_t_n @ C0, gyro_bias=b_g_fit, accel_bias=b_a_fit, covariance=filter_order(cov),
-                     heading_source="motion", observable=bool(heading_sigma < HEADING_SIGMA_OK),
-                     heading_sigma=float(heading_sigma), heading_time=float(heading_time),
-                     window=(float(t[row0]), float(t_end)), variance_factor=vf,
-                     bias_prior_sigma=(float(prior[0]), float(prior[1])))
+    return tried
 
 
 #: where each block of the fit's correction vector (true = estimate + correction) starts: rotation ρ (with

@@ -111,12 +111,78 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings | ProcessingConfig,
     if isinstance(cfg, ProcessingConfig):
         cfg = GraphSettings.of(cfg)
     import gtsam
-    from gtsam.symbol_shorthand import B, U, V, X
+    from gtsam.symbol_shorthand import U, V, X
 
     # the lever arm the EKF + RTS applies, and so fits its noise model with: the configured one, or
     # ``noise_lever``, the robust pass's estimate when that differs from the configured one (:func:`_noise_refit`)
     rts_lever = np.asarray(cfg.lever_arm_gnss if noise_lever is None else noise_lever, float)
     rts = solve_ins(inputs, cfg if noise_lever is None else cfg.with_lever_arm(noise_lever), smooth=True)
+    kf = _keyframes(inputs, rts)
+    prior_mean, prior_cov = calibration_prior(cfg, prior)
+    values = _initial_values(gtsam, kf, rts)
+    factors_at = {0: _first_priors(gtsam, kf, rts, values, prior_mean, prior_cov, rts_lever)}
+    _add_imu_factors(gtsam, inputs, cfg, kf, rts, values, factors_at)
+    if cfg.unit.aiding and inputs.unit_rpy is not None:
+        _add_unit_attitude(gtsam, U, X, inputs.unit_rpy, rts, kf.t, kf.key_rows, kf.C_n_t_rows, rts.diagnostics.noise,
+                           values, factors_at)
+    nhc_sigma = _add_ground_vehicle(gtsam, X, V, rts, inputs.gyro, kf.key_rows, values, factors_at)
+    fixes = _graph_fixes(inputs, cfg, kf, rts)
+    calibration = rts.diagnostics.calibration
+    lever_start = np.asarray(calibration.lever_arm if calibration is not None else prior_mean[CAL_LEVER], float)
+    start = gtsam.Values(values)
+    if cfg.graph.robust:
+        start, lever_start = _robust_pass(gtsam, cfg, kf, fixes, factors_at, values, lever_start, prior_mean,
+                                          prior_cov)
+        if noise_lever is None and _noise_refit(lever_start, rts_lever, cfg):
+            nav = solve_graph_inputs(inputs, cfg, noise_lever=lever_start, prior=prior)
+            # the quality checks compare what the data show with the user's configuration, not with the refit's
+            nav.diagnostics.calibration = rts.diagnostics.calibration
+            nav.diagnostics.lever_arm_given = rts.diagnostics.lever_arm_given
+            return nav
+    inlier = _inliers(start, fixes, lever_start, prior_mean[CAL_TIME_OFFSET], cfg.gnss_gate.chi2) \
+        if cfg.graph.robust else np.ones(len(fixes.key), bool)
+    start.insert(CALIBRATION, np.concatenate([lever_start, prior_mean[CAL_TIME_OFFSET:]]))
+    solved = _solve(gtsam, cfg, kf, factors_at, fixes, inlier, start, prior_mean, prior_cov, nhc_sigma)
+    corrections = _keyframe_corrections(kf, solved)
+    rows = _rows_from_keyframes(kf, rts, corrections)
+    info = _graph_info(cfg, kf, solved, corrections, inlier, prior_mean, prior_cov, len(nhc_sigma),
+                       rts_lever if noise_lever is not None else None)
+    return NavSolution(method="graph", time=kf.t, r_e=rows.r_e, v_e=rows.v_e, lat=rows.lat, lon=rows.lon,
+                       height=rows.height, roll=rows.roll, pitch=rows.pitch, yaw=rows.yaw, pos_var_n=rows.pos_var_n,
+                       att_sigma=rows.att_sigma, valid=rows.valid, gnss=rts.gnss, ins_info=rts.ins_info,
+                       graph_info=info, att_cov_n=rows.att_cov_n, diagnostics=rts.diagnostics)
+
+
+@dataclass(frozen=True)
+class _Keyframes:
+    """The RTS solution the graph starts from, in the local tangent plane at the flight's centre.
+
+    ``t`` (N,) [s] the IMU rows' times; ``use`` the GNSS fixes (indices) within the RTS's solved span;
+    ``key_rows`` the keyframes' rows; the plane's origin ``r0`` [m, ECEF], rotation ``C_e_t`` (ECEF to plane),
+    normal ``gravity`` at the origin [m/s^2] and Earth rate ``omega`` [rad/s, plane]; per row: ``C_n_t_rows``
+    (N, 3, 3) each row's NED to the plane, ``C_b_t`` (N, 3, 3) body to plane, ``p_t`` (N, 3) [m] and ``v_t``
+    (N, 3) [m/s] position and velocity in the plane."""
+
+    t: np.ndarray
+    use: np.ndarray
+    key_rows: np.ndarray
+    r0: np.ndarray
+    C_e_t: np.ndarray
+    gravity: float
+    omega: np.ndarray
+    C_n_t_rows: np.ndarray
+    C_b_t: np.ndarray
+    p_t: np.ndarray
+    v_t: np.ndarray
+
+    def to_plane(self, r_e: np.ndarray) -> np.ndarray:
+        """ECEF positions [m] into the plane [m]."""
+        return (r_e - self.r0) @ self.C_e_t.T
+
+
+def _keyframes(inputs: InsInputs, rts: NavSolution) -> _Keyframes:
+    """The keyframes (:func:`_key_rows`) of the fixes within the RTS's solved rows, the tangent plane at the
+    central keyframe, and the RTS's states in that plane."""
     t = rts.time
     valid_rows = np.flatnonzero(rts.valid)
     gnss = inputs.gnss
@@ -128,51 +194,68 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings | ProcessingConfig,
     lat0, lon0, h0 = rts.lat[key_rows[centre]], rts.lon[key_rows[centre]], rts.height[key_rows[centre]]
     r0 = geodetic_to_ecef(lat0, lon0, h0)
     C_e_t = C_e_n(lat0, lon0)
-
-    def to_plane(r_e: np.ndarray) -> np.ndarray:
-        return (r_e - r0) @ C_e_t.T
-
     # rotation of each point's NED into the plane: C_n_t = C_e_t C_n_e(lat, lon)
     C_n_t_rows = C_e_t @ C_n_e(rts.lat, rts.lon)
-    # the noise model the EKF + RTS fitted to this flight's data
-    noise = rts.diagnostics.noise
     gravity, omega = float(normal_gravity(lat0, h0)), C_e_t @ C_n_e(lat0, lon0) @ earth_rate_n(lat0)
-    params = _preintegration_params(gtsam, noise, gravity, omega, 1.0)
-    q_scale = _process_noise_scale(rts, inputs)
+    return _Keyframes(t=t, use=use, key_rows=key_rows, r0=r0, C_e_t=C_e_t, gravity=gravity, omega=omega,
+                      C_n_t_rows=C_n_t_rows, C_b_t=C_n_t_rows @ euler_to_dcm(rts.roll, rts.pitch, rts.yaw),
+                      p_t=(rts.r_e - r0) @ C_e_t.T,
+                      v_t=rts.v_e @ C_e_t.T)  # ECEF velocity into the tangent plane
+
+
+def _initial_values(gtsam: ModuleType, kf: _Keyframes, rts: NavSolution) -> gtsam.Values:
+    """Pose ``X(k)``, velocity ``V(k)`` and bias ``B(k)`` of every keyframe at the RTS solution."""
+    from gtsam.symbol_shorthand import B, V, X
+
     values = gtsam.Values()
-    factors_at: dict[int, list] = {}
-    C_b_t = C_n_t_rows @ euler_to_dcm(rts.roll, rts.pitch, rts.yaw)
-    p_t = to_plane(rts.r_e)
-    v_t = rts.v_e @ C_e_t.T  # ECEF velocity into the tangent plane
     gyro_bias, accel_bias = rts.ins_info.gyro_bias, rts.ins_info.accel_bias
-    for k, row in enumerate(key_rows):
-        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(C_b_t[row]), p_t[row]))
-        values.insert(V(k), v_t[row])
+    for k, row in enumerate(kf.key_rows):
+        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(kf.C_b_t[row]), kf.p_t[row]))
+        values.insert(V(k), kf.v_t[row])
         values.insert(B(k), gtsam.imuBias.ConstantBias(accel_bias[row], gyro_bias[row]))
-    first = key_rows[0]
-    prior_mean, prior_cov = calibration_prior(cfg, prior)
-    # loose priors at the first keyframe: the RTS's position there rests on the lever arm it applied, so its prior
-    # also allows for the lever-arm prior's uncertainty and its distance from the configured one (else an untold
-    # lever arm is pulled towards zero: 10 sigma in z on a PPK flight, 12 sigma under a campaign's prior)
+    return values
+
+
+def _first_priors(gtsam: ModuleType, kf: _Keyframes, rts: NavSolution, values: gtsam.Values, prior_mean: np.ndarray,
+                  prior_cov: np.ndarray, rts_lever: np.ndarray) -> list:
+    """Loose priors on the first keyframe's pose, velocity and bias. The RTS's position there rests on the lever arm
+    it applied (``rts_lever`` [m, body]), so its prior also allows for the lever-arm prior's uncertainty and its
+    distance from the configured one (else an untold lever arm is pulled towards zero: 10 sigma in z on a PPK
+    flight, 12 sigma under a campaign's prior)."""
+    from gtsam.symbol_shorthand import B, V, X
+
+    first = kf.key_rows[0]
     lever_doubt = np.hypot(np.sqrt(np.trace(prior_cov[CAL_LEVER, CAL_LEVER])),
                            np.linalg.norm(prior_mean[CAL_LEVER] - rts_lever))
     pos_sigma = np.hypot(np.sqrt(rts.pos_var_n[first]) * 3.0, lever_doubt)
-    factors_at[0] = [
+    return [
         gtsam.PriorFactorPose3(X(0), values.atPose3(X(0)), gtsam.noiseModel.Diagonal.Sigmas(
             np.concatenate([np.full(3, np.radians(1.0)), pos_sigma]))),
-        gtsam.PriorFactorVector(V(0), v_t[first], gtsam.noiseModel.Isotropic.Sigma(3, 0.5)),
+        gtsam.PriorFactorVector(V(0), kf.v_t[first], gtsam.noiseModel.Isotropic.Sigma(3, 0.5)),
         gtsam.PriorFactorConstantBias(B(0), values.atConstantBias(B(0)), gtsam.noiseModel.Diagonal.Sigmas(
             np.sqrt(np.concatenate([np.diag(rts.diagnostics.alignment.covariance)[BA:BA + 3],
                                     np.diag(rts.diagnostics.alignment.covariance)[BG:BG + 3]])) * 3.0))]
-    gyro = inputs.gyro
+
+
+def _add_imu_factors(gtsam: ModuleType, inputs: InsInputs, cfg: GraphSettings, kf: _Keyframes, rts: NavSolution,
+                     values: gtsam.Values, factors_at: dict[int, list]) -> None:
+    """An IMU factor and a bias random-walk factor per interval between keyframes (and, with scale factors, the
+    :data:`SCALE` variable and its prior at the first keyframe), added to ``factors_at``."""
+    from gtsam.symbol_shorthand import B, V, X
+
+    t, key_rows = kf.t, kf.key_rows
+    noise = rts.diagnostics.noise
+    params = _preintegration_params(gtsam, noise, kf.gravity, kf.omega, 1.0)
+    q_scale = _process_noise_scale(rts, inputs)
     # each row's own normal gravity, turned into the plane: f' = f + C_t_b (g_t - g_plane) makes GTSAM's constant
     # plane gravity exact (the local vertical is tilted by d/R from the plane's down axis)
-    g_t = C_n_t_rows[:, :, 2] * normal_gravity(rts.lat, rts.height)[:, None]
-    g_fix = np.einsum("nji,nj->ni", C_b_t, g_t - np.array([0.0, 0.0, float(normal_gravity(lat0, h0))]))
+    g_t = kf.C_n_t_rows[:, :, 2] * normal_gravity(rts.lat, rts.height)[:, None]
+    g_fix = np.einsum("nji,nj->ni", kf.C_b_t, g_t - np.array([0.0, 0.0, kf.gravity]))
     accel = inputs.accel + np.where(np.isfinite(g_fix), g_fix, 0.0)
     # per-interval rates with the strapdown's rotation, sculling and coning corrections: GTSAM holds the attitude
-    # at the start of each step (georef.fusion.increments; without them the graph lost 3-7 % to rts)
-    accel_step, gyro_step = compensated_rates(t, gyro, accel, gyro_bias, accel_bias)
+    # at the start of each step (georef.fusion.increments; without them the graph lost accuracy against rts:
+    # docs/performance.md, "Graph smoother")
+    accel_step, gyro_step = compensated_rates(t, inputs.gyro, accel, rts.ins_info.gyro_bias, rts.ins_info.accel_bias)
     scale_sigma = cfg.graph.scale_factor_sigma
     # B(k) is the bias the IMU factor of the interval from keyframe k to k + 1 corrects its rates by: the sensor's
     # bias plus, with scale factors, diag(mean rates over the interval) s (:func:`_bias_factor`)
@@ -189,7 +272,7 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings | ProcessingConfig,
         # preintegrated rotation and velocity variances (integrals of the noise density) are then the EKF's
         segment = q_scale[a + 1:b + 1]
         scale = np.average(segment, axis=0, weights=np.diff(t[a:b + 1])) if np.any(segment != 1.0) else (1.0, 1.0)
-        step = params if scale[0] == 1.0 else _preintegration_params(gtsam, noise, gravity, omega, scale[0])
+        step = params if scale[0] == 1.0 else _preintegration_params(gtsam, noise, kf.gravity, kf.omega, scale[0])
         pim = gtsam.PreintegratedImuMeasurements(step, values.atConstantBias(B(k - 1)))
         for r in range(a, b):
             pim.integrateMeasurement(accel_rows[r], gyro_rows[r], dt_rows[r])
@@ -198,95 +281,172 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings | ProcessingConfig,
             gtsam.ImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), pim),
             _bias_factor(gtsam, B(k - 1), B(k), _bias_drive(noise, scale[1]) * (t[b] - t[a]),
                          rate_change if scale_sigma > 0 else None, values)])
-    if cfg.unit.aiding and inputs.unit_rpy is not None:
-        _add_unit_attitude(gtsam, U, X, inputs.unit_rpy, rts, t, key_rows, C_n_t_rows, noise, values, factors_at)
-    nhc_sigma = _add_ground_vehicle(gtsam, X, V, rts, gyro, key_rows, values, factors_at)
-    # the calibration variables (the GNSS lever arm [m, body] and the GNSS time offset [s]: each fix was measured
-    # that long before its time tag, the EKF's ``gnss_latency``) with their prior; GNSS antenna fixes with the
-    # sigmas the EKF + RTS fitted to this flight: each fix's own (gnss.csv sigma_n/e/u) or the configured ones,
-    # scaled by the fitted variance factors
-    sigma = _fix_sigmas(gnss, cfg) * np.sqrt([noise.r_scale_h, noise.r_scale_h, noise.r_scale_v])
-    fixes = _fixes_at_keyframes(gnss, use, t, key_rows, to_plane, sigma)
-    calibration = rts.diagnostics.calibration
-    lever_start = np.asarray(calibration.lever_arm if calibration is not None else prior_mean[CAL_LEVER], float)
-    start = gtsam.Values(values)
-    if cfg.graph.robust:
-        # robust pass: a Cauchy kernel on every fix, the lever arm a variable, the time offset held at its prior
-        # mean; the fixes it leaves as outliers are then dropped and the graph refitted with Gaussian factors
-        cauchy = gtsam.noiseModel.mEstimator.Cauchy.Create(CAUCHY_K)
-        offset = prior_mean[CAL_TIME_OFFSET]
-        robust_factors = {k: [gtsam.GPSFactorArmCalib(X(k), LEVER, z + v_t[key_rows[k]] * (offset - lag),
-                                                      gtsam.noiseModel.Robust.Create(
-                                                          cauchy, gtsam.noiseModel.Diagonal.Sigmas(fix_sigma)))]
-                          for k, z, lag, fix_sigma in zip(fixes.key, fixes.z, fixes.lag, fixes.sigma, strict=True)}
-        robust_factors[0] = robust_factors.get(0, []) + [gtsam.PriorFactorPoint3(
-            LEVER, prior_mean[CAL_LEVER], gtsam.noiseModel.Gaussian.Covariance(prior_cov[CAL_LEVER, CAL_LEVER]))]
-        robust_start = gtsam.Values(values)
-        robust_start.insert(LEVER, lever_start)
-        start = _optimise(gtsam, cfg, factors_at, robust_factors, robust_start, len(key_rows))
-        lever_start = np.asarray(start.atPoint3(LEVER), float)
-        start.erase(LEVER)
-        if noise_lever is None and _noise_refit(lever_start, rts_lever, cfg):
-            nav = solve_graph_inputs(inputs, cfg, noise_lever=lever_start, prior=prior)
-            # the quality checks compare what the data show with the user's configuration, not with the refit's
-            nav.diagnostics.calibration = rts.diagnostics.calibration
-            nav.diagnostics.lever_arm_given = rts.diagnostics.lever_arm_given
-            return nav
-    inlier = _inliers(start, fixes, lever_start, prior_mean[CAL_TIME_OFFSET], cfg.gnss_gate.chi2) \
-        if cfg.graph.robust else np.ones(len(fixes.key), bool)
-    start.insert(CALIBRATION, np.concatenate([lever_start, prior_mean[CAL_TIME_OFFSET:]]))
+
+
+def _graph_fixes(inputs: InsInputs, cfg: GraphSettings, kf: _Keyframes, rts: NavSolution) -> _Fixes:
+    """The GNSS antenna fixes at their keyframes with the sigmas the EKF + RTS fitted to this flight: each fix's own
+    (gnss.csv sigma_n/e/u) or the configured ones, scaled by the fitted variance factors. They constrain the
+    calibration variable too: the GNSS lever arm [m, body] and the GNSS time offset [s] (each fix was measured
+    that long before its time tag, the EKF's ``gnss_latency``)."""
+    noise = rts.diagnostics.noise
+    sigma = _fix_sigmas(inputs.gnss, cfg) * np.sqrt([noise.r_scale_h, noise.r_scale_h, noise.r_scale_v])
+    return _fixes_at_keyframes(inputs.gnss, kf.use, kf.t, kf.key_rows, kf.to_plane, sigma)
+
+
+def _robust_pass(gtsam: ModuleType, cfg: GraphSettings, kf: _Keyframes, fixes: _Fixes, factors_at: dict[int, list],
+                 values: gtsam.Values, lever_start: np.ndarray, prior_mean: np.ndarray,
+                 prior_cov: np.ndarray) -> tuple[gtsam.Values, np.ndarray]:
+    """The robust pass: a Cauchy kernel on every fix, the lever arm a variable (from ``lever_start`` [m, body]),
+    the time offset held at its prior mean. Returns its solution (without the lever-arm variable) and its lever arm
+    [m, body]; the fixes it leaves as outliers are then dropped (:func:`_inliers`) and the graph refitted with
+    Gaussian factors."""
+    from gtsam.symbol_shorthand import X
+
+    cauchy = gtsam.noiseModel.mEstimator.Cauchy.Create(CAUCHY_K)
+    offset = prior_mean[CAL_TIME_OFFSET]
+    robust_factors = {k: [gtsam.GPSFactorArmCalib(X(k), LEVER, z + kf.v_t[kf.key_rows[k]] * (offset - lag),
+                                                  gtsam.noiseModel.Robust.Create(
+                                                      cauchy, gtsam.noiseModel.Diagonal.Sigmas(fix_sigma)))]
+                      for k, z, lag, fix_sigma in zip(fixes.key, fixes.z, fixes.lag, fixes.sigma, strict=True)}
+    robust_factors[0] = robust_factors.get(0, []) + [gtsam.PriorFactorPoint3(
+        LEVER, prior_mean[CAL_LEVER], gtsam.noiseModel.Gaussian.Covariance(prior_cov[CAL_LEVER, CAL_LEVER]))]
+    robust_start = gtsam.Values(values)
+    robust_start.insert(LEVER, lever_start)
+    start = _optimise(gtsam, cfg, factors_at, robust_factors, robust_start, len(kf.key_rows))
+    lever = np.asarray(start.atPoint3(LEVER), float)
+    start.erase(LEVER)
+    return start, lever
+
+
+@dataclass(frozen=True)
+class _Solved:
+    """The optimised graph: its ``result`` (gtsam.Values), the whole factor ``graph`` and its ``marginals``."""
+
+    result: Any
+    graph: Any
+    marginals: _QrMarginals
+
+
+def _solve(gtsam: ModuleType, cfg: GraphSettings, kf: _Keyframes, factors_at: dict[int, list], fixes: _Fixes,
+           inlier: np.ndarray, start: gtsam.Values, prior_mean: np.ndarray, prior_cov: np.ndarray,
+           nhc_sigma: dict[int, np.ndarray]) -> _Solved:
+    """The Gaussian fit: the calibration variable's prior and the ``inlier`` fixes' factors (linearised at
+    ``start``) added to ``factors_at``, optimised from ``start``; a ground vehicle's non-holonomic factors
+    linearised once more at the optimum (batch solver); the marginals from QR."""
+    from gtsam.symbol_shorthand import V, X
+
     gnss_factors: dict[int, list] = {0: [gtsam.PriorFactorVector(CALIBRATION, prior_mean,
                                                                  gtsam.noiseModel.Gaussian.Covariance(prior_cov))]}
     kept = _Fixes(key=fixes.key[inlier], z=fixes.z[inlier], lag=fixes.lag[inlier], sigma=fixes.sigma[inlier])
     for k, factor in zip(kept.key, _gnss_factors(gtsam, kept, start), strict=True):
         gnss_factors.setdefault(k, []).append(factor)
-    result = _optimise(gtsam, cfg, factors_at, gnss_factors, start, len(key_rows))
+    result = _optimise(gtsam, cfg, factors_at, gnss_factors, start, len(kf.key_rows))
     graph = gtsam.NonlinearFactorGraph()
-    for k in range(len(key_rows)):
+    for k in range(len(kf.key_rows)):
         for factor in factors_at.get(k, []) + gnss_factors.get(k, []):
             graph.add(factor)
     if nhc_sigma and cfg.graph.solver != "isam2":
         result = _relinearise_ground_vehicle(gtsam, X, V, graph, result, nhc_sigma)
-    marginals = _QrMarginals(gtsam, graph, result)
+    return _Solved(result=result, graph=graph, marginals=_QrMarginals(gtsam, graph, result))
 
-    # graph minus RTS at the keyframes, interpolated to every row
+
+@dataclass(frozen=True)
+class _KeyframeCorrections:
+    """Graph minus RTS at the keyframes (K of them), and the graph's own uncertainty there.
+
+    ``R`` (K, 3, 3) the graph's body-to-plane rotations; ``d_pos`` (K, 3) [m] and ``d_vel`` (K, 3) [m/s] the
+    position and velocity differences in the plane; ``d_rot`` (K, 3) [rad] the rotation ``R C_t_b(RTS)`` as a
+    plane-frame rotation vector; ``pos_var`` (K, 3) [m^2] the NED position variances; ``att_cov`` (K, 3, 3)
+    [rad^2] the NED attitude-error covariances."""
+
+    R: np.ndarray
+    d_pos: np.ndarray
+    d_vel: np.ndarray
+    d_rot: np.ndarray
+    pos_var: np.ndarray
+    att_cov: np.ndarray
+
+
+def _keyframe_corrections(kf: _Keyframes, solved: _Solved) -> _KeyframeCorrections:
+    """The graph minus the RTS at every keyframe, with the graph's marginal covariances in each keyframe's NED."""
+    from gtsam.symbol_shorthand import X
+
+    key_rows = kf.key_rows
     n_keys = len(key_rows)
-    R_keys, p_keys, v_keys = _keyframe_states(result, np.arange(n_keys))
-    d_pos = p_keys - p_t[key_rows]
-    d_vel = v_keys - v_t[key_rows]
-    cov = marginals.marginalCovariances([X(k) for k in range(n_keys)])  # (K, 6, 6), Pose3 tangent: body axes
-    C_b_n_keys = np.swapaxes(C_n_t_rows[key_rows], -1, -2) @ R_keys
+    R_keys, p_keys, v_keys = _keyframe_states(solved.result, np.arange(n_keys))
+    cov = solved.marginals.marginalCovariances([X(k) for k in range(n_keys)])  # (K, 6, 6), Pose3 tangent: body axes
+    C_b_n_keys = np.swapaxes(kf.C_n_t_rows[key_rows], -1, -2) @ R_keys
     pos_var = np.diagonal(C_b_n_keys @ cov[:, POSE_TRANS, POSE_TRANS] @ np.swapaxes(C_b_n_keys, -1, -2), axis1=1,
                           axis2=2)
     att_cov = C_b_n_keys @ cov[:, POSE_ROT, POSE_ROT] @ np.swapaxes(C_b_n_keys, -1, -2)
-    d_rot = quat_to_rotvec(dcm_to_quat(R_keys @ np.swapaxes(C_b_t[key_rows], -1, -2)))  # plane-frame rotations
-    rows = np.arange(len(t))
+    d_rot = quat_to_rotvec(dcm_to_quat(R_keys @ np.swapaxes(kf.C_b_t[key_rows], -1, -2)))  # plane-frame rotations
+    return _KeyframeCorrections(R=R_keys, d_pos=p_keys - kf.p_t[key_rows], d_vel=v_keys - kf.v_t[key_rows],
+                                d_rot=d_rot, pos_var=pos_var, att_cov=att_cov)
+
+
+@dataclass(frozen=True)
+class _GraphRows:
+    """The graph's solution at every IMU row (N): ECEF ``r_e`` [m] and ``v_e`` [m/s], geodetic ``lat``, ``lon``
+    [rad] and ``height`` [m], body-to-NED ``roll``, ``pitch``, ``yaw`` [rad], NED ``pos_var_n`` [m^2] and
+    ``att_cov_n`` (N, 3, 3) [rad^2], Euler ``att_sigma`` [rad], and ``valid`` (rows the RTS solved)."""
+
+    r_e: np.ndarray
+    v_e: np.ndarray
+    lat: np.ndarray
+    lon: np.ndarray
+    height: np.ndarray
+    roll: np.ndarray
+    pitch: np.ndarray
+    yaw: np.ndarray
+    pos_var_n: np.ndarray
+    att_cov_n: np.ndarray
+    att_sigma: np.ndarray
+    valid: np.ndarray
+
+
+def _rows_from_keyframes(kf: _Keyframes, rts: NavSolution, corrections: _KeyframeCorrections) -> _GraphRows:
+    """IMU-rate states: the RTS trajectory corrected by the graph-minus-RTS difference interpolated between
+    keyframes, turned back into each row's own NED frame; covariances interpolated likewise."""
+    key_rows = kf.key_rows
+    rows = np.arange(len(kf.t))
     interp = lambda data: np.stack([np.interp(rows, key_rows, data[:, j]) for j in range(data.shape[1])], -1)  # noqa: E731
-    p_new = p_t + interp(d_pos)
-    v_new = v_t + interp(d_vel)
-    rot = rotvec_to_quat(interp(d_rot))
-    C_b_t_new = quat_to_dcm(quat_multiply(rot, dcm_to_quat(C_b_t)))
-    r_e = r0 + p_new @ C_e_t
+    p_new = kf.p_t + interp(corrections.d_pos)
+    v_new = kf.v_t + interp(corrections.d_vel)
+    rot = rotvec_to_quat(interp(corrections.d_rot))
+    C_b_t_new = quat_to_dcm(quat_multiply(rot, dcm_to_quat(kf.C_b_t)))
+    r_e = kf.r0 + p_new @ kf.C_e_t
     lat, lon, height = ecef_to_geodetic(r_e)
-    C_b_n_new = np.swapaxes(C_e_t @ C_n_e(lat, lon), -1, -2) @ C_b_t_new
+    C_b_n_new = np.swapaxes(kf.C_e_t @ C_n_e(lat, lon), -1, -2) @ C_b_t_new
     roll, pitch, yaw = dcm_to_euler(C_b_n_new)
-    v_e = v_new @ C_e_t
-    pos_var_rows = interp(pos_var)
-    att_cov_rows = interp(att_cov.reshape(n_keys, 9)).reshape(-1, 3, 3)
+    v_e = v_new @ kf.C_e_t
+    pos_var_rows = interp(corrections.pos_var)
+    att_cov_rows = interp(corrections.att_cov.reshape(len(key_rows), 9)).reshape(-1, 3, 3)
     J = euler_error_jacobian(roll, pitch, yaw)
     att_sigma = np.sqrt(np.einsum("nij,njk,nik->ni", J, att_cov_rows, J))
     valid = rts.valid.copy()  # rows beyond the end keyframes (< MIN_EDGE_GAP) take the end keyframes' corrections
     for array in (r_e, v_e, pos_var_rows, att_sigma):
         array[~valid] = np.nan
+    return _GraphRows(r_e=r_e, v_e=v_e, lat=lat, lon=lon, height=height, roll=roll, pitch=pitch, yaw=yaw,
+                      pos_var_n=pos_var_rows, att_cov_n=att_cov_rows, att_sigma=att_sigma, valid=valid)
+
+
+def _graph_info(cfg: GraphSettings, kf: _Keyframes, solved: _Solved, corrections: _KeyframeCorrections,
+                inlier: np.ndarray, prior_mean: np.ndarray, prior_cov: np.ndarray, nhc_factors: int,
+                noise_refit_lever: np.ndarray | None) -> GraphInfo:
+    """The graph's calibration estimate (lever arm, time offset, scale factors) with its marginal covariance, its
+    fixes and outliers, and its separation from the RTS it started from."""
+    result, marginals = solved.result, solved.marginals
+    d_pos, pos_var, att_cov = corrections.d_pos, corrections.pos_var, corrections.att_cov
     # the graph against the RTS it started from, in units of the graph's own horizontal sigma at each keyframe:
     # both smoothers carry the same information, so a separation of several sigma means one of them went wrong
     separation = np.hypot(d_pos[:, 0], d_pos[:, 1]) / np.sqrt(pos_var[:, 0] + pos_var[:, 1])
     # and the attitude: the graph-minus-RTS rotation in each keyframe's NED frame, per axis in units of the graph's
     # own sigma of that axis, the largest of the three
-    d_rot_n = np.einsum("kji,kj->ki", C_n_t_rows[key_rows], d_rot)
+    d_rot_n = np.einsum("kji,kj->ki", kf.C_n_t_rows[kf.key_rows], corrections.d_rot)
     attitude_separation = np.max(np.abs(d_rot_n) / np.sqrt(np.diagonal(att_cov, axis1=1, axis2=2)), axis=1)
     estimate = np.asarray(result.atVector(CALIBRATION), float)
     covariance = marginals.marginalCovariance(CALIBRATION)
+    scale_sigma = cfg.graph.scale_factor_sigma
     scale_factors = None
     if scale_sigma > 0:
         scale, scale_sigmas = np.asarray(result.atVector(SCALE), float), np.sqrt(np.diag(
@@ -294,18 +454,15 @@ def solve_graph_inputs(inputs: InsInputs, cfg: GraphSettings | ProcessingConfig,
         scale_factors = ScaleFactors(accel_ppm=scale[:3] * 1e6, accel_sigma_ppm=scale_sigmas[:3] * 1e6,
                                      gyro_ppm=scale[3:] * 1e6, gyro_sigma_ppm=scale_sigmas[3:] * 1e6,
                                      prior_sigma_ppm=scale_sigma * 1e6)
-    info = GraphInfo(lever_arm_m=estimate[CAL_LEVER], lever_arm_sigma_m=np.sqrt(np.diag(covariance)[CAL_LEVER]),
+    return GraphInfo(lever_arm_m=estimate[CAL_LEVER], lever_arm_sigma_m=np.sqrt(np.diag(covariance)[CAL_LEVER]),
                      time_offset_s=float(estimate[CAL_TIME_OFFSET]),
                      time_offset_sigma_s=float(np.sqrt(covariance[CAL_TIME_OFFSET, CAL_TIME_OFFSET])),
                      calibration=GraphCalibration(mean=estimate, covariance=covariance, prior_mean=prior_mean,
                                                   prior_covariance=prior_cov),
                      rejected_fixes=int(np.sum(~inlier)), fixes=len(inlier), rts_separation_sigma=separation,
-                     rts_attitude_separation_sigma=attitude_separation, keyframes=n_keys,
-                     nhc_factors=len(nhc_sigma), error_final=graph.error(result), scale_factors=scale_factors,
-                     noise_refit_lever_arm_m=rts_lever if noise_lever is not None else None)
-    return NavSolution(method="graph", time=t, r_e=r_e, v_e=v_e, lat=lat, lon=lon, height=height, roll=roll,
-                       pitch=pitch, yaw=yaw, pos_var_n=pos_var_rows, att_sigma=att_sigma, valid=valid, gnss=rts.gnss,
-                       ins_info=rts.ins_info, graph_info=info, att_cov_n=att_cov_rows, diagnostics=rts.diagnostics)
+                     rts_attitude_separation_sigma=attitude_separation, keyframes=len(kf.key_rows),
+                     nhc_factors=nhc_factors, error_final=solved.graph.error(result), scale_factors=scale_factors,
+                     noise_refit_lever_arm_m=noise_refit_lever)
 
 
 class _QrMarginals:
@@ -322,8 +479,8 @@ class _QrMarginals:
 
     Each marginal is then taken from the QR tree with GTSAM's default elimination (Cholesky on the small joint of a
     clique and its separator's marginal), and with QR only where that fails: the tree's square-root factors keep
-    these small systems well conditioned. Measured on the 15-minute benchmark flight (898 keyframes): 0.28 s against
-    0.51 s with QR throughout. On two ill-conditioned flights, the 21.6-s tactical car of the property sweep and a
+    these small systems well conditioned, and it is faster than QR throughout (docs/method-graph.md, "Speed"). On
+    two ill-conditioned flights, the 21.6-s tactical car of the property sweep and a
     20-s tactical helicopter with an outage, the two agree to 7e-8 relative on every variable and neither fails."""
 
     def __init__(self, gtsam: ModuleType, graph: gtsam.NonlinearFactorGraph, result: gtsam.Values) -> None:
@@ -355,8 +512,9 @@ TIME_OFFSET_GIVEN_SIGMA = 0.01  # s, a GNSS latency given in the configuration
 #: s, none given: a POS log time-tags its fixes from the receiver's PPS, so the offset is zero unless a latency is
 #: misconfigured (which the EKF's latency check reports). The offset is a time shift of the whole trajectory
 #: against the IMU's clock, so its error moves every frame along track by speed x error: 1-m fixes determine it
-#: to 13 ms in 3 minutes (0.4 m at 30 m/s; seed 1 of the bundled flight's kind went from 0.28 to 0.68 m with
-#: 20 ms, and 0.9 m free), PPK-grade fixes to 0.6 ms in 10 minutes. Set ``gnss_latency_sigma`` to calibrate it.
+#: to 13 ms in 3 minutes (0.4 m at 30 m/s; a looser prior made the bundled flight's kind worse:
+#: docs/performance.md, "Graph smoother"), PPK-grade fixes to 0.6 ms in 10 minutes. Set ``gnss_latency_sigma`` to
+#: calibrate it.
 TIME_OFFSET_DEFAULT_SIGMA = 0.002
 #: the calibration variable: (lever arm x, y, z [m, body], GNSS time offset [s]), one per flight
 CALIBRATION = 0x6300000000000000  # gtsam.symbol("c", 0), spelt out so that importing this module needs no gtsam
@@ -471,9 +629,8 @@ def _inliers(values: gtsam.Values, fixes: _Fixes, lever: np.ndarray, offset: flo
 
 #: Levenberg-Marquardt stops when an iteration lowers the cost by less than this fraction of it (GTSAM's default
 #: 1e-5). The graph starts from the RTS solution, close to its optimum, where the Gauss-Newton steps converge
-#: quadratically: measured against the default, positions moved by at most 0.02 mm on the 15-minute helicopter
-#: flight (robust pass 2 iterations instead of 3, refit 1 instead of 2) and 1.5 mm on KITTI (0.2 mm RMS; robust
-#: pass 3 instead of 5; outage RMS 0.8907 against 0.8905 m), for 0.15-0.6 s less.
+#: quadratically: against the default, positions moved by a negligible amount for fewer iterations and less time
+#: (docs/method-graph.md, "Speed").
 LM_RELATIVE_TOLERANCE = 1e-3
 
 
@@ -588,7 +745,8 @@ def _process_noise_scale(rts: NavSolution, inputs: InsInputs) -> np.ndarray:
     :func:`georef.fusion.ins.imu_gaps` while ``solve_ins`` ran; the KITTI log has runs of 0.1-0.5 s). Preintegrating
     the interpolated samples with the sensor's own noise made the KITTI graph's IMU factors disagree with the
     RTS by up to 15 deg of yaw over one second and drift 30 m in the outages. The EKF's fitted factor inside GNSS
-    outages (``outage_scale``) is not applied: on KITTI it raised the outage RMS from 0.85 to 0.94 m."""
+    outages (``outage_scale``) is not applied: on KITTI it made the outages worse (docs/method-graph.md, "The
+    graph")."""
     return _gap_scale(rts.time, inputs.gaps, rts.diagnostics.noise)
 
 
@@ -603,7 +761,7 @@ def _noise_refit(lever: np.ndarray, applied: np.ndarray, cfg: GraphSettings) -> 
     that model. With the lever arm not told (zero applied, 1.7 m true) a 10-minute PPK helicopter flight's
     fitted horizontal GNSS variance was 6.4 times the fixes' (1.04 with the true one): the graph, which estimates
     the lever arm itself, then weighted its fixes 2.5 times too loosely in sigma and claimed lever-arm sigmas
-    1.4-1.9 times its errors (RMS error/sigma 0.53/0.74/0.56 over 20 flights). The EKF's own calibration pass is
+    1.4-1.9 times its errors (docs/method-graph.md, "Calibration, measured"). The EKF's own calibration pass is
     no substitute: on a 3-minute flight it put z at -1.00 +- 0.04 m against -1.65, moving in steps."""
     threshold = max(LEVER_REFIT_MIN, float(cfg.gnss.sigma[0]))
     return bool(np.any(np.abs(lever - applied) > threshold))
@@ -643,9 +801,10 @@ def _unit_factor(gtsam: ModuleType, key_x: int, key_u: int, error: np.ndarray, H
 
     Linearised once, at the initial values ``at`` (of which the factor keeps its own two), and kept as a
     ``LinearContainerFactor``: GTSAM evaluates it in C++ at every iteration (a Python ``CustomFactor`` made each
-    Levenberg-Marquardt iteration about 30x slower). The initial values are the RTS solution, which the graph
-    moves by hundredths of a degree, so the Jacobian's change (second order in that move) is negligible: on the
-    15-minute benchmark flight the optimised graph error agrees with the CustomFactor's to 1e-8 relative.
+    Levenberg-Marquardt iteration much slower, docs/performance.md, "Graph smoother"). The initial values are the
+    RTS solution, which the graph moves by hundredths of a degree, so the Jacobian's change (second order in that
+    move) is negligible: on the 15-minute benchmark flight the optimised graph error agrees with the
+    CustomFactor's to 1e-8 relative.
     A body rotation ``xi`` in ``R Exp(xi)`` is the NED rotation ``C xi``, and ``euler_error_jacobian = E C^T``:
     ``error`` (3,) [rad] and ``H_rot = E C`` (3, 3) come vectorised over the keyframes from
     :func:`_unit_linearisation`.
@@ -709,7 +868,8 @@ def _relinearise_ground_vehicle(gtsam: ModuleType, X: Symbol, V: Symbol, graph: 
     """The non-holonomic factors of ``graph`` linearised again at the optimised ``result`` (replaced in place),
     and Levenberg-Marquardt run again from there. Where the graph turns the attitude far from the RTS (on KITTI
     up to 6.3 deg after a run of interpolated IMU samples) the first linearisation is off by up to 1.1 in a
-    factor's error; once more moved positions by at most 0.19 m (median 2 mm) and cost 0.07 s there."""
+    factor's error; once more moves positions by decimetres at most, for little time (docs/method-graph.md, "The
+    graph")."""
     for index in range(graph.size()):
         factor = graph.at(index)
         if not isinstance(factor, gtsam.LinearContainerFactor):

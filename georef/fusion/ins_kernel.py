@@ -5,8 +5,11 @@ Layouts: :mod:`georef.fusion.ins_layout` (named indices, one order for the error
 The forward filter (:func:`ekf_forward`) mechanises every IMU row and propagates the covariance at *covariance
 epochs* (every ``stride`` rows and at every update): :func:`propagate` builds F at the epoch's mean attitude and
 specific force and discretises it to third order. At an epoch it may fuse the unit's attitude
-(:func:`unit_attitude_innovation`) and GNSS fixes (:func:`gnss_innovation`), each through :func:`kalman_update`
-with a chi-square gate, and feeds the correction back (closed loop). When ``max_rejects`` fixes in a row are
+(:func:`unit_attitude_innovation`), GNSS fixes (:func:`gnss_innovation`), a ground vehicle's non-holonomic
+constraint and a still vehicle's zero velocity and rate, each through the one chi-square-gated update
+(:func:`gated_update`), and feeds the correction back (closed loop). The pass is written as step functions
+(:func:`_strapdown_row`, :func:`_propagate_to`, the updates, :func:`_close_epoch`) over named records
+(:class:`ForwardRecords`), scratch (:class:`Scratch`) and counters. When OPT_MAX_REJECTS fixes in a row are
 rejected it stops and reports the first of them, so that the caller can re-align there (divergence recovery).
 
 The smoother (:func:`rts_backward`) runs over the epochs of one or more filter segments and, when asked, adds up
@@ -18,6 +21,7 @@ posterior covariance.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -40,7 +44,7 @@ from georef.frames.kernels import (
     radii,
     transport_rate,
 )
-from georef.fusion.ins_layout import (  # noqa: F401  (the kernel's public names, as before)
+from georef.fusion.ins_layout import (
     ATT,
     AUX_NHC,
     AUX_UNIT,
@@ -78,12 +82,15 @@ from georef.fusion.ins_layout import (  # noqa: F401  (the kernel's public names
     LATENCY,
     LEVER,
     N_BLOCKS,
-    N_NOISE,
     NHC_GATE,
     NHC_LEVER,
-    NS,
-    NX_CAL,
-    NX_NAV,
+    OPT_GATE,
+    OPT_MAX_GAP,
+    OPT_MAX_REJECTS,
+    OPT_NHC,
+    OPT_OUTAGE_S,
+    OPT_STRIDE,
+    OPT_UNIT_AIDING,
     POS,
     Q_ATT_H,
     Q_ATT_V,
@@ -128,12 +135,11 @@ from georef.fusion.ins_layout import (  # noqa: F401  (the kernel's public names
     X_VEL,
     ZUPT_GATE,
 )
-from georef.fusion.strapdown import (  # noqa: F401  (exported)
+from georef.fusion.strapdown import (
     MECHANISE_WORK,
     increments,
-    mechanise,
     mechanise_into,
-    two_sample_corrections,
+    two_sample_corrections,  # noqa: F401  (exported by the "ins" kernel, georef/aot.py)
 )
 
 
@@ -167,14 +173,25 @@ def system_matrix(x: np.ndarray, C: np.ndarray, f_n: np.ndarray, noise: np.ndarr
     gradient, Earth rate and transport rate from :mod:`georef.frames.kernels`.
     """
     F[:, :] = 0.0
+    _position_velocity_rows(x, f_n, F)
+    # biases: the mechanisation subtracts the estimated bias, so f_est - f = -C db_a, w_est - w = -db_g
+    for i in range(3):
+        for j in range(3):
+            F[VEL + i, BA + j] = -C[i, j]
+            F[ATT + i, BG + j] = C[i, j]
+    _attitude_rows(x, F)
+    _random_process_rows(noise, F)
+
+
+@njit(cache=True)
+def _position_velocity_rows(x: np.ndarray, f_n: np.ndarray, F: np.ndarray) -> None:
+    """The position and velocity error rows of F against position, velocity and attitude (f_n [m/s^2])."""
     lat, h = x[X_LAT], x[X_HGT]
     vn, ve, vd = x[X_VEL], x[X_VEL + 1], x[X_VEL + 2]
     M, N = radii(lat)
     Mh, Nh = M + h, N + h
     tl = math.tan(lat)
     sl, cl = math.sin(lat), math.cos(lat)
-    w_ie = np.empty(3)
-    earth_rate(lat, w_ie)
     w = OMEGA_IE
     # position
     F[POS, POS] = -vd / Mh
@@ -200,12 +217,20 @@ def system_matrix(x: np.ndarray, C: np.ndarray, f_n: np.ndarray, noise: np.ndarr
     F[VEL + 2, VEL] = -2.0 * vn / Mh
     F[VEL + 2, VEL + 1] = -2.0 * (w * cl + ve / Nh)
     add_skew(f_n, F, VEL, ATT, 1.0)
-    # biases: the mechanisation subtracts the estimated bias, so f_est - f = -C db_a, w_est - w = -db_g
-    for i in range(3):
-        for j in range(3):
-            F[VEL + i, BA + j] = -C[i, j]
-            F[ATT + i, BG + j] = C[i, j]
-    # attitude
+
+
+@njit(cache=True)
+def _attitude_rows(x: np.ndarray, F: np.ndarray) -> None:
+    """The attitude error rows of F against position, velocity and attitude (the navigation frame's rotation)."""
+    lat, h = x[X_LAT], x[X_HGT]
+    vn, ve = x[X_VEL], x[X_VEL + 1]
+    M, N = radii(lat)
+    Mh, Nh = M + h, N + h
+    tl = math.tan(lat)
+    sl, cl = math.sin(lat), math.cos(lat)
+    w = OMEGA_IE
+    w_ie = np.empty(3)
+    earth_rate(lat, w_ie)
     F[ATT, POS] = -w * sl / Mh
     F[ATT, POS + 2] = ve / Nh**2
     F[ATT + 1, POS + 2] = -vn / Mh**2
@@ -217,10 +242,15 @@ def system_matrix(x: np.ndarray, C: np.ndarray, f_n: np.ndarray, noise: np.ndarr
     w_en = np.empty(3)
     transport_rate(lat, h, x[X_VEL:X_VEL + 3], w_en)
     add_skew(w_ie + w_en, F, ATT, ATT, -1.0)
+
+
+@njit(cache=True)
+def _random_process_rows(noise: np.ndarray, F: np.ndarray) -> None:
+    """The Gauss-Markov and random-walk rows of F: the IMU biases, the unit's attitude errors (Gauss-Markov roll
+    and pitch, a yaw origin with a drift rate) and the correlated GNSS error."""
     for i in range(3):
         F[BG + i, BG + i] = -noise[INV_TAU_G]
         F[BA + i, BA + i] = -noise[INV_TAU_A]
-    # the unit's attitude errors: Gauss-Markov roll/pitch, yaw origin with a drift rate
     F[UNIT_LEVEL, UNIT_LEVEL] = -noise[INV_TAU_UNIT]
     F[UNIT_LEVEL + 1, UNIT_LEVEL + 1] = -noise[INV_TAU_UNIT]
     F[UNIT_YAW, UNIT_DRIFT] = 1.0
@@ -504,314 +534,469 @@ def add_fix_correlation(S: np.ndarray, r: np.ndarray, rho: np.ndarray) -> None:
     S[2, 1] += ed
 
 
-@njit(cache=True)
-def aux_update(x, P, P_next, z, H, r, gate, C, dx_total, work, n_ep, kind, n_aux, aux_epoch, aux_kind, aux_z, aux_H,
-               aux_status, aux_r):
-    """Record an auxiliary update (ZUPT, ZARU, the unit's attitude: 3 rows, diagonal noise ``r``) in slot
-    ``n_aux`` and apply it unless its normalised innovation squared exceeds ``gate``.
+class UpdateLog(NamedTuple):
+    """Where :func:`gated_update` records each update, one slot per update: the covariance epoch it was made at,
+    its innovation relative to the epoch's pre-update error (3,), H (3, nx) and FIX_USED or FIX_REJECTED."""
 
-    Returns the covariance and the spare buffer (swapped when applied) and the normalised innovation squared."""
-    S = innovation_covariance(P, H, r)
-    S_inv = np.linalg.inv(S)
-    d2 = z @ S_inv @ z
-    aux_epoch[n_aux] = n_ep
-    aux_kind[n_aux] = kind
-    aux_z[n_aux] = z + H @ dx_total
-    aux_H[n_aux] = H
-    aux_r[n_aux] = r
-    if d2 <= gate:
-        aux_status[n_aux] = FIX_USED
-        kalman_update(x, P, H, z, S_inv, C, dx_total, work, P_next)
-        return P_next, P, d2
-    aux_status[n_aux] = FIX_REJECTED
-    return P, P_next, d2
+    epoch: np.ndarray
+    z: np.ndarray
+    H: np.ndarray
+    status: np.ndarray
 
 
 @njit(cache=True)
-def ekf_forward(t, gyro, accel, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fix, rho_fix, noise, q_scale, stride,
-                gate_chi2, max_rejects, max_gap, outage_s, unit_rpy, unit_aiding, nhc, still, nav):
-    """One segment of the forward error-state EKF, from ``start_row`` until the end or a divergence.
+def gated_update(x: np.ndarray, P: np.ndarray, P_next: np.ndarray, z: np.ndarray, H: np.ndarray, S: np.ndarray,
+                 rows: int, gate: float, C: np.ndarray, dx_total: np.ndarray, work: np.ndarray, log: UpdateLog,
+                 slot: int, epoch: int) -> tuple[np.ndarray, np.ndarray, float, bool]:
+    """One chi-square-gated measurement update of the first ``rows`` (2 or 3) rows of innovation ``z`` (3,)
+    with ``H`` (3, nx) and innovation covariance ``S`` (3, 3), recorded in ``log`` at ``slot`` (at covariance
+    epoch ``epoch``) and applied (:func:`kalman_update`, closed loop into ``x``, ``C`` and ``dx_total``) unless
+    its normalised innovation squared ``d2 = zᵀ S⁻¹ z`` exceeds ``gate``.
 
-    Inputs: row times ``t`` (N,) s; ``gyro`` rad/s and ``accel`` m/s^2 (N, 3) body frame; the start row, its
-    nominal state ``x0`` (NS,) and covariance ``P0`` (nx, nx) with nx = NX_NAV or NX_CAL; per GNSS fix: the row
-    at or after it ``fix_row``, ``fix_lag`` = t[row] - t_fix [s], antenna ``z_fix`` (lat, lon [rad], h [m]) and
-    NED variances ``r_fix`` [m^2] (before the R_SCALE factors) and correlation coefficients ``rho_fix`` (M, 3):
-    north-east, north-down, east-down (zeros: independent axes; R = D^1/2 C D^1/2 with D the scaled
-    variances, so the R_SCALE factors keep the correlations); the noise vector (N_NOISE,); factors on the
-    process noise of the interval ending at each row ``q_scale`` (N, 2): on the white specific force and angular
-    rate, and on the bias and unit-error drives; covariance epochs every ``stride`` rows; the chi-square gate;
-    ``max_rejects`` consecutive rejected fixes stop the segment (0: never), and so do DRIFT_REJECTS of them
-    starting within DRIFT_WINDOW fixes after a GNSS outage longer than ``outage_s`` [s] or an IMU gap
-    (STOP_DRIFT: the inertial drift over the outage or gap exceeded the model, not a divergence); an IMU gap
-    longer than ``max_gap`` [s] stops it at the row before the gap (STOP_GAP). With ``unit_aiding`` the unit's
-    roll, pitch, yaw ``unit_rpy`` (N, 3) [rad] are fused at every GNSS epoch and at least once a second; with
-    ``nhc`` the non-holonomic constraint of a ground vehicle at every covariance epoch; at every covariance epoch
-    on a row where ``still`` (N,) is set, a zero-velocity update with variance R_ZUPT and a zero angular-rate update
-    of the epoch's mean rate with variance R_ZARU over the epoch's rows.
-    The nominal state of every row is written into ``nav`` (N, NS).
+    Returns the covariance and the spare buffer (swapped when the update was applied), ``d2`` and whether it was
+    applied. With fewer rows the gain's inverse has zeros beyond them (the NHC's third row is unused)."""
+    log.epoch[slot] = epoch
+    log.z[slot] = z + H @ dx_total
+    log.H[slot] = H
+    if rows == S.shape[0]:
+        S_inv = np.linalg.inv(S)
+        d2 = z @ S_inv @ z
+        if d2 <= gate:
+            log.status[slot] = FIX_USED
+            kalman_update(x, P, H, z, S_inv, C, dx_total, work, P_next)
+            return P_next, P, d2, True
+    else:
+        S_rows_inv = np.linalg.inv(S[:rows, :rows])
+        d2 = z[:rows] @ S_rows_inv @ z[:rows]
+        if d2 <= gate:
+            S_pad = np.zeros((3, 3))
+            S_pad[:rows, :rows] = S_rows_inv
+            log.status[slot] = FIX_USED
+            kalman_update(x, P, H, z, S_pad, C, dx_total, work, P_next)
+            return P_next, P, d2, True
+    log.status[slot] = FIX_REJECTED
+    return P, P_next, d2, False
 
-    Returns per covariance epoch: row, interval [s], P⁻, P⁺, Φ, the feedback correction; per fix: epoch,
-    innovation relative to the epoch's pre-update error, H, innovation covariance, normalised innovation
-    squared, status; per auxiliary update (unit attitude, NHC): epoch, kind, innovation, H, status, the
-    measurement variances used (AUX_UNIT, AUX_NHC, AUX_ZUPT); ``stop`` =
-    (last row, first fix of the rejected run, STOP_END, STOP_DIVERGED, STOP_GAP or STOP_DRIFT); and per epoch
-    the innovation log-likelihood of its GNSS fixes, unit and NHC updates, rejected ones included (E, 3).
-    """
-    n = t.shape[0]
-    m = fix_row.shape[0]
-    nx = P0.shape[0]
+
+# ---- the forward pass: its inputs, records, scratch and bookkeeping ----------------------------------------
+class ImuRows(NamedTuple):
+    """The forward pass's per-row inputs: times [s] (N,), gyro [rad/s] and accelerometer [m/s^2] samples (N, 3,
+    body), the process-noise factors (N, 2), the still flags (N,) and the unit's roll, pitch, yaw [rad] (N, 3)."""
+
+    t: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+    q_scale: np.ndarray
+    still: np.ndarray
+    unit_rpy: np.ndarray
+
+
+class FixInputs(NamedTuple):
+    """The GNSS fixes (M,): row at or after each, lag behind it [s], antenna (lat, lon [rad], h [m]) (M, 3), NED
+    variances [m^2] (M, 3) and correlation coefficients (north-east, north-down, east-down) (M, 3)."""
+
+    row: np.ndarray
+    lag: np.ndarray
+    z: np.ndarray
+    r: np.ndarray
+    rho: np.ndarray
+
+
+class ForwardRecords(NamedTuple):
+    """What :func:`ekf_forward` returns, written as it goes (see there); ``fixes`` and ``aux`` are the
+    :class:`UpdateLog` of the GNSS fixes and of the auxiliary updates."""
+
+    ep_row: np.ndarray
+    ep_dT: np.ndarray
+    ep_Pm: np.ndarray
+    ep_Pp: np.ndarray
+    ep_Phi: np.ndarray
+    ep_dx: np.ndarray
+    ep_loglik: np.ndarray
+    fixes: UpdateLog
+    fix_S: np.ndarray
+    fix_d2: np.ndarray
+    aux: UpdateLog
+    aux_kind: np.ndarray
+    aux_r: np.ndarray
+    stop: np.ndarray
+
+
+class Scratch(NamedTuple):
+    """The forward pass's work buffers, allocated once per segment (nothing is allocated per IMU row): F, Φ,
+    Q_d, products (9, nx, nx), the strapdown's (MECHANISE_WORK, 4), this row's and the previous row's increments,
+    the nominal C_b_n, the interval's start and mean attitude, its specific force in the body and NED frames, and
+    the epoch's sums of C_b_n, specific force and measured rate."""
+
+    F: np.ndarray
+    Phi: np.ndarray
+    Qd: np.ndarray
+    work: np.ndarray
+    mech: np.ndarray
+    dtheta: np.ndarray
+    dvel: np.ndarray
+    dtheta_prev: np.ndarray
+    dvel_prev: np.ndarray
+    C: np.ndarray
+    C_start: np.ndarray
+    C_mid: np.ndarray
+    u: np.ndarray
+    f_row: np.ndarray
+    C_sum: np.ndarray
+    f_sum: np.ndarray
+    w_sum: np.ndarray
+
+
+# the pass's counters (int64) and times (float64), by name
+N_EP, N_AUX, K_FIX, COUNT, REJECTS, FIRST_REJECTED, AFTER_OUTAGE, GAP_SINCE_FIX, FIXES_SINCE_OUTAGE = range(9)
+T_EPOCH, T_LAST_FIX, T_UNIT = range(3)
+
+
+@njit(cache=True)
+def _allocate_records(n: int, start_row: int, stride: int, m: int, nx: int) -> ForwardRecords:
+    """Records for a pass over rows ``start_row..n-1`` with ``m`` fixes: every epoch at most, four auxiliary
+    updates an epoch at most; ``stop`` = (last row, first rejected fix, STOP_END)."""
     max_epochs = (n - start_row) // max(stride, 1) + m + 2
-    ep_row = np.zeros(max_epochs, dtype=np.int64)
-    ep_dT = np.zeros(max_epochs)
     # the epochs' matrices are written epoch by epoch and returned up to the last one written: left unfilled
     # (filling these three, 22 MB for a 15-minute flight at 2 Hz, took a quarter of the pass's time)
-    ep_Pm = np.empty((max_epochs, nx, nx))
-    ep_Pp = np.empty((max_epochs, nx, nx))
-    ep_Phi = np.empty((max_epochs, nx, nx))
-    ep_dx = np.zeros((max_epochs, nx))
-    fix_epoch = np.full(m, -1, dtype=np.int64)
-    fix_z = np.full((m, 3), np.nan)
-    fix_H = np.zeros((m, 3, nx))
-    fix_S = np.full((m, 3, 3), np.nan)
-    fix_d2 = np.full(m, np.nan)
-    fix_status = np.full(m, FIX_UNUSED, dtype=np.int64)
+    fixes = UpdateLog(np.full(m, -1, dtype=np.int64), np.full((m, 3), np.nan), np.zeros((m, 3, nx)),
+                      np.full(m, FIX_UNUSED, dtype=np.int64))
     # written update by update, returned up to the last one written
-    aux_epoch = np.empty(4 * max_epochs, dtype=np.int64)
-    aux_kind = np.empty(4 * max_epochs, dtype=np.int64)
-    aux_z = np.empty((4 * max_epochs, 3))
-    aux_H = np.empty((4 * max_epochs, 3, nx))
-    aux_status = np.empty(4 * max_epochs, dtype=np.int64)
-    aux_r = np.empty((4 * max_epochs, 3))
-    n_aux = 0
-    stop = np.array([n - 1, -1, STOP_END], dtype=np.int64)
-    # innovation log-likelihood of the GNSS fixes, unit and NHC updates at each epoch:
+    n_aux = 4 * max_epochs
+    aux = UpdateLog(np.empty(n_aux, dtype=np.int64), np.empty((n_aux, 3)), np.empty((n_aux, 3, nx)),
+                    np.empty(n_aux, dtype=np.int64))
+    # ep_loglik: innovation log-likelihood of the GNSS fixes, unit and NHC updates at each epoch,
     # -1/2 sum(log det S + zᵀS⁻¹z + m log 2π)
-    ep_loglik = np.zeros((max_epochs, 3))
+    return ForwardRecords(np.zeros(max_epochs, dtype=np.int64), np.zeros(max_epochs),
+                          np.empty((max_epochs, nx, nx)), np.empty((max_epochs, nx, nx)),
+                          np.empty((max_epochs, nx, nx)), np.zeros((max_epochs, nx)), np.zeros((max_epochs, 3)),
+                          fixes, np.full((m, 3, 3), np.nan), np.full(m, np.nan), aux,
+                          np.empty(n_aux, dtype=np.int64), np.empty((n_aux, 3)),
+                          np.array([n - 1, -1, STOP_END], dtype=np.int64))
 
+
+@njit(cache=True)
+def _allocate_scratch(nx: int) -> Scratch:
+    """Work buffers of a pass with ``nx`` error states (:class:`Scratch`)."""
+    return Scratch(np.zeros((nx, nx)), np.zeros((nx, nx)), np.zeros((nx, nx)), np.empty((9, nx, nx)),
+                   np.empty((MECHANISE_WORK, 4)), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3),
+                   np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty(3), np.empty(3),
+                   np.zeros((3, 3)), np.zeros(3), np.zeros(3))
+
+
+@njit(cache=True)
+def _start_bookkeeping(t: np.ndarray, start_row: int, fixes: FixInputs) -> tuple[np.ndarray, np.ndarray]:
+    """The counters and times at ``start_row``: one epoch, the first fix after the start, no rejects, no gap, the
+    last fix's time (the start's when none was before it)."""
+    book = np.zeros(9, dtype=np.int64)
+    book[N_EP] = 1
+    m = fixes.row.shape[0]
+    while book[K_FIX] < m and fixes.row[book[K_FIX]] <= start_row:
+        book[K_FIX] += 1
+    book[FIRST_REJECTED] = -1
+    book[FIXES_SINCE_OUTAGE] = DRIFT_WINDOW  # fixes processed since the last GNSS outage or IMU gap
+    clock = np.full(3, t[start_row])
+    if book[K_FIX] > 0:
+        clock[T_LAST_FIX] = t[fixes.row[book[K_FIX] - 1]] - fixes.lag[book[K_FIX] - 1]
+    return book, clock
+
+
+@njit(cache=True)
+def _open_first_epoch(start_row: int, P: np.ndarray, rec: ForwardRecords) -> None:
+    """The first epoch's record: the start row, P⁻ = P⁺ = P0, Φ = I."""
+    rec.ep_row[0] = start_row
+    rec.ep_Pm[0] = P
+    rec.ep_Pp[0] = P
+    rec.ep_Phi[0] = np.eye(P.shape[0])
+
+
+@njit(cache=True)
+def _strapdown_row(k: int, imu: ImuRows, first: bool, x: np.ndarray, noise: np.ndarray, s: Scratch,
+                   book: np.ndarray) -> None:
+    """Advance the nominal state ``x`` to row ``k`` (the strapdown, the unit's and the receiver's nominal
+    errors) and add the interval's mean attitude, specific force and rate to the epoch's sums."""
+    dt = imu.t[k] - imu.t[k - 1]
+    if imu.q_scale[k, 0] > 1.0:
+        book[GAP_SINCE_FIX] = 1  # an IMU gap (raised navigation noise) since the last fix
+    increments(imu.gyro[k - 1], imu.gyro[k], imu.accel[k - 1], imu.accel[k], dt, x, s.dtheta, s.dvel)
+    if first:
+        s.dtheta_prev[:] = s.dtheta
+        s.dvel_prev[:] = s.dvel
+    s.C_start[:, :] = s.C
+    mechanise_into(x, s.dtheta, s.dvel, s.dtheta_prev, s.dvel_prev, dt, s.C, s.mech)
+    s.dtheta_prev[:] = s.dtheta
+    s.dvel_prev[:] = s.dvel
+    # the unit's nominal attitude errors
+    x[X_UNIT_YAW] += x[X_UNIT_DRIFT] * dt
+    decay = math.exp(-dt * noise[INV_TAU_UNIT])
+    x[X_UNIT_LEVEL] *= decay
+    x[X_UNIT_LEVEL + 1] *= decay
+    decay = math.exp(-dt * noise[INV_TAU_GNSS])
+    for i in range(3):
+        x[X_GNSS_GM + i] *= decay
+    # the interval's mean attitude and specific force, for F; per component (no temporaries: every row)
+    for i in range(3):
+        s.u[i] = s.dvel[i] / dt
+        for j in range(3):
+            s.C_mid[i, j] = 0.5 * (s.C_start[i, j] + s.C[i, j])
+            s.C_sum[i, j] += s.C_mid[i, j]
+    np.dot(s.C_mid, s.u, s.f_row)
+    for i in range(3):
+        s.f_sum[i] += s.f_row[i]
+        s.w_sum[i] += imu.gyro[k, i]
+    book[COUNT] += 1
+
+
+@njit(cache=True)
+def _propagate_to(row: int, imu: ImuRows, x_epoch: np.ndarray, P: np.ndarray, P_next: np.ndarray,
+                  noise: np.ndarray, rec: ForwardRecords, s: Scratch, book: np.ndarray,
+                  clock: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Propagate the covariance from the last epoch to ``row`` with the epoch's mean attitude and specific
+    force, and open the epoch's record there (row, interval, P⁻, Φ). Returns P⁻ and the spare buffer."""
+    count = book[COUNT]
+    dT = imu.t[row] - clock[T_EPOCH]
+    propagate(P, x_epoch, s.C_sum / count, s.f_sum / count, noise, dT, imu.q_scale[row], s.F, s.Phi, s.Qd, s.work,
+              P_next)
+    n_ep = book[N_EP]
+    rec.ep_row[n_ep] = row
+    rec.ep_dT[n_ep] = dT
+    rec.ep_Pm[n_ep] = P_next
+    rec.ep_Phi[n_ep] = s.Phi
+    return P_next, P
+
+
+@njit(cache=True)
+def _stop(rec: ForwardRecords, row: int, first_rejected: int, reason: int) -> None:
+    """Record why and where the pass stopped."""
+    rec.stop[0] = row
+    rec.stop[1] = first_rejected
+    rec.stop[2] = reason
+
+
+@njit(cache=True)
+def _log_aux(rec: ForwardRecords, book: np.ndarray, kind: int, r: np.ndarray) -> None:
+    """Complete the auxiliary update just logged by :func:`gated_update` (its kind and variances) and move on."""
+    rec.aux_kind[book[N_AUX]] = kind
+    rec.aux_r[book[N_AUX]] = r
+    book[N_AUX] += 1
+
+
+@njit(cache=True)
+def _nhc_update(k: int, imu: ImuRows, x: np.ndarray, P: np.ndarray, P_next: np.ndarray, dx_total: np.ndarray,
+                noise: np.ndarray, rec: ForwardRecords, s: Scratch, book: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The non-holonomic constraint at row ``k``'s epoch (a ground vehicle)."""
+    z, H = nhc_innovation(x, s.C, P.shape[0])
+    # the constraint holds at the rear axle, up to NHC_LEVER from the IMU: the body's rotation moves the IMU
+    # sideways (yaw rate) and up and down (pitch rate) by that much more
+    r_turn = np.array([noise[R_NHC], noise[R_NHC], 1.0])
+    r_turn[0] += (NHC_LEVER * (imu.gyro[k, 2] - x[X_BG + 2])) ** 2
+    r_turn[1] += (NHC_LEVER * (imu.gyro[k, 1] - x[X_BG + 1])) ** 2
+    S = innovation_covariance(P, H, r_turn)
+    n_ep = book[N_EP]
+    # a ground vehicle's constraint is gated only against gross violations (a skid): gating it like a fix would
+    # drop it exactly when the heading drifts and it carries the most information
+    P, P_next, d2, _ = gated_update(x, P, P_next, z, H, S, 2, NHC_GATE, s.C, dx_total, s.work[0], rec.aux,
+                                    book[N_AUX], n_ep)
+    rec.ep_loglik[n_ep, 2] -= 0.5 * (math.log(np.linalg.det(S[:2, :2])) + d2 + 2.0 * math.log(2.0 * math.pi))
+    _log_aux(rec, book, AUX_NHC, r_turn)
+    return P, P_next
+
+
+@njit(cache=True)
+def _still_updates(x: np.ndarray, P: np.ndarray, P_next: np.ndarray, dx_total: np.ndarray, noise: np.ndarray,
+                   rec: ForwardRecords, s: Scratch, book: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The zero-velocity and zero angular-rate updates of a vehicle standing still at this epoch."""
+    nx = P.shape[0]
+    # a vehicle read as still that moves after all is refused
+    z, H = zupt_innovation(x, nx)
+    r_zupt = np.array([noise[R_ZUPT], noise[R_ZUPT], noise[R_ZUPT]])
+    S = innovation_covariance(P, H, r_zupt)
+    P, P_next, _, _ = gated_update(x, P, P_next, z, H, S, 3, ZUPT_GATE, s.C, dx_total, s.work[0], rec.aux,
+                                   book[N_AUX], book[N_EP])
+    _log_aux(rec, book, AUX_ZUPT, r_zupt)
+    # and no rotation: the mean rate over the epoch is the gyro bias (and the Earth's rate)
+    z, H = zaru_innovation(x, s.C, s.w_sum / book[COUNT], nx)
+    r_zaru = np.full(3, noise[R_ZARU] / book[COUNT])
+    S = innovation_covariance(P, H, r_zaru)
+    P, P_next, _, _ = gated_update(x, P, P_next, z, H, S, 3, ZUPT_GATE, s.C, dx_total, s.work[0], rec.aux,
+                                   book[N_AUX], book[N_EP])
+    _log_aux(rec, book, AUX_ZARU, r_zaru)
+    return P, P_next
+
+
+@njit(cache=True)
+def _unit_update(k: int, imu: ImuRows, x: np.ndarray, P: np.ndarray, P_next: np.ndarray, dx_total: np.ndarray,
+                 noise: np.ndarray, gate: float, rec: ForwardRecords, s: Scratch,
+                 book: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The unit's roll, pitch and yaw at row ``k``'s epoch."""
+    r_unit = np.array([noise[R_UNIT_LEVEL], noise[R_UNIT_LEVEL], noise[R_UNIT_YAW]])
+    z, H = unit_attitude_innovation(x, s.C, imu.unit_rpy[k], P.shape[0])
+    S = innovation_covariance(P, H, r_unit)
+    n_ep = book[N_EP]
+    # every processed update counts, gated or not: a filter that gates its data out must not look good
+    rec.ep_loglik[n_ep, 1] -= 0.5 * (math.log(np.linalg.det(S)) + 3.0 * math.log(2.0 * math.pi))
+    P, P_next, d2, _ = gated_update(x, P, P_next, z, H, S, 3, gate, s.C, dx_total, s.work[0], rec.aux, book[N_AUX],
+                                    n_ep)
+    rec.ep_loglik[n_ep, 1] -= 0.5 * d2
+    _log_aux(rec, book, AUX_UNIT, r_unit)
+    return P, P_next
+
+
+@njit(cache=True)
+def _fix_updates(k: int, t: np.ndarray, fixes: FixInputs, x: np.ndarray, P: np.ndarray, P_next: np.ndarray,
+                 dx_total: np.ndarray, noise: np.ndarray, options: np.ndarray, rec: ForwardRecords, s: Scratch,
+                 book: np.ndarray, clock: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The GNSS fixes at row ``k``, each gated (loosely for the first after an outage or an IMU gap), with the
+    count of rejected fixes in a row and where the run began."""
+    r_scale = np.array([noise[R_SCALE_H], noise[R_SCALE_H], noise[R_SCALE_V]])
+    n_ep = book[N_EP]
+    while book[K_FIX] < fixes.row.shape[0] and fixes.row[book[K_FIX]] == k:
+        k_fix = book[K_FIX]
+        t_fix = t[k] - fixes.lag[k_fix]
+        if t_fix - clock[T_LAST_FIX] > options[OPT_OUTAGE_S] or book[GAP_SINCE_FIX] != 0:
+            book[FIXES_SINCE_OUTAGE] = 0
+        z, H = gnss_innovation(x, s.C, fixes.z[k_fix], fixes.lag[k_fix], P.shape[0])
+        r = fixes.r[k_fix] * r_scale
+        S = innovation_covariance(P, H, r)
+        add_fix_correlation(S, r, fixes.rho[k_fix])
+        # re-acquisition: the first fixes after an outage or an IMU gap correct the drift itself; only a gross
+        # outlier is gated there
+        gate = REACQUIRE_GATE if book[FIXES_SINCE_OUTAGE] < REACQUIRE_FIXES else options[OPT_GATE]
+        P, P_next, d2, used = gated_update(x, P, P_next, z, H, S, 3, gate, s.C, dx_total, s.work[0], rec.fixes,
+                                           k_fix, n_ep)
+        rec.fix_S[k_fix] = S
+        rec.fix_d2[k_fix] = d2
+        rec.ep_loglik[n_ep, 0] -= 0.5 * (math.log(np.linalg.det(S)) + d2 + 3.0 * math.log(2.0 * math.pi))
+        if used:
+            book[REJECTS] = 0
+        else:
+            if book[REJECTS] == 0:
+                book[FIRST_REJECTED] = k_fix
+                book[AFTER_OUTAGE] = book[FIXES_SINCE_OUTAGE] < DRIFT_WINDOW
+            book[REJECTS] += 1
+        book[FIXES_SINCE_OUTAGE] += 1
+        clock[T_LAST_FIX] = t_fix
+        book[GAP_SINCE_FIX] = 0
+        book[K_FIX] += 1
+    return P, P_next
+
+
+@njit(cache=True)
+def _close_epoch(k: int, t: np.ndarray, x: np.ndarray, x_epoch: np.ndarray, P: np.ndarray, P_next: np.ndarray,
+                 dx_total: np.ndarray, nav: np.ndarray, rec: ForwardRecords, s: Scratch, book: np.ndarray,
+                 clock: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Symmetrise P⁺, record it and the epoch's feedback correction, and start the next epoch at row ``k``."""
+    nx = P.shape[0]
+    for i in range(nx):
+        for j in range(nx):
+            P_next[i, j] = 0.5 * (P[i, j] + P[j, i])
+    P, P_next = P_next, P
+    rec.ep_Pp[book[N_EP]] = P
+    rec.ep_dx[book[N_EP]] = dx_total
+    book[N_EP] += 1
+    s.C_sum[:, :] = 0.0
+    s.w_sum[:] = 0.0
+    s.f_sum[:] = 0.0
+    book[COUNT] = 0
+    x_epoch[:] = x
+    clock[T_EPOCH] = t[k]
+    nav[k] = x
+    return P, P_next
+
+
+@njit(cache=True)
+def _stopped_by_rejects(k: int, options: np.ndarray, rec: ForwardRecords, book: np.ndarray) -> bool:
+    """Whether the rejected fixes in a row stop the pass at row ``k`` (recorded in ``rec.stop``): DRIFT_REJECTS
+    of them soon after an outage or a gap (STOP_DRIFT), or ``max_rejects`` anywhere (STOP_DIVERGED)."""
+    max_rejects = int(options[OPT_MAX_REJECTS])
+    if max_rejects > 0 and book[AFTER_OUTAGE] != 0 and book[REJECTS] >= DRIFT_REJECTS:
+        _stop(rec, k, book[FIRST_REJECTED], STOP_DRIFT)
+        return True
+    if max_rejects > 0 and book[REJECTS] >= max_rejects:
+        _stop(rec, k, book[FIRST_REJECTED], STOP_DIVERGED)
+        return True
+    return False
+
+
+@njit(cache=True)
+def _aid_epoch(k: int, imu: ImuRows, fixes: FixInputs, has_fix: bool, x: np.ndarray, P: np.ndarray,
+               P_next: np.ndarray, dx_total: np.ndarray, noise: np.ndarray, options: np.ndarray, rec: ForwardRecords,
+               s: Scratch, book: np.ndarray, clock: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The updates of row ``k``'s epoch, in this order: the NHC, the still vehicle's, the unit's attitude (at a
+    fix's epoch and at least once a second), the GNSS fixes."""
+    if options[OPT_NHC] > 0.5:
+        P, P_next = _nhc_update(k, imu, x, P, P_next, dx_total, noise, rec, s, book)
+    if imu.still[k]:
+        P, P_next = _still_updates(x, P, P_next, dx_total, noise, rec, s, book)
+    if options[OPT_UNIT_AIDING] > 0.5 and (has_fix or imu.t[k] - clock[T_UNIT] >= 1.0):
+        clock[T_UNIT] = imu.t[k]
+        P, P_next = _unit_update(k, imu, x, P, P_next, dx_total, noise, options[OPT_GATE], rec, s, book)
+    return _fix_updates(k, imu.t, fixes, x, P, P_next, dx_total, noise, options, rec, s, book, clock)
+
+
+@njit(cache=True)
+def ekf_forward(t, gyro, accel, q_scale, still, unit_rpy, start_row, x0, P0, fix_row, fix_lag, z_fix, r_fix,
+                rho_fix, noise, options, nav):
+    """One segment of the forward error-state EKF, from ``start_row`` until the end or a stop.
+
+    Inputs: the IMU rows (:class:`ImuRows`: the still flags ask for a zero-velocity and a zero angular-rate update
+    at every epoch on such a row); the start row, its nominal state ``x0`` (NS,) and covariance ``P0`` (nx, nx),
+    nx = NX_NAV or NX_CAL; the GNSS fixes (:class:`FixInputs`; variances before the R_SCALE factors, which keep
+    the correlations: R = D^1/2 C D^1/2); the noise vector (N_NOISE,); ``options`` (N_OPTIONS,), named OPT_* in
+    :mod:`~georef.fusion.ins_layout`. The pass stops after OPT_MAX_REJECTS fixes rejected in a row (STOP_DIVERGED;
+    0: never), after DRIFT_REJECTS of them within DRIFT_WINDOW fixes after a GNSS outage longer than OPT_OUTAGE_S
+    or an IMU gap (STOP_DRIFT: the drift exceeded the model), at the row before an IMU gap longer than OPT_MAX_GAP
+    (STOP_GAP). ``nav`` (N, NS) receives the nominal state of every row.
+
+    Returns per covariance epoch: row, interval [s], P⁻, P⁺, Φ, the feedback correction; per fix: epoch,
+    innovation relative to the epoch's pre-update error, H, innovation covariance, normalised innovation squared,
+    status; per auxiliary update: epoch, kind (AUX_*), innovation, H, status, variances; ``stop`` = (last row,
+    first fix of the rejected run, STOP_*); per epoch the innovation log-likelihood of its GNSS fixes, unit and NHC
+    updates, rejected ones included (E, 3). ``ForwardOutputs`` in :mod:`georef.fusion.ins` names them.
+    """
+    n, nx = t.shape[0], P0.shape[0]
+    imu = ImuRows(t, gyro, accel, q_scale, still, unit_rpy)
+    fixes = FixInputs(fix_row, fix_lag, z_fix, r_fix, rho_fix)
+    stride = int(options[OPT_STRIDE])
+    rec = _allocate_records(n, start_row, stride, fix_row.shape[0], nx)
+    s = _allocate_scratch(nx)
+    book, clock = _start_bookkeeping(t, start_row, fixes)
     x = x0.copy()
     P = P0.copy()
+    P_next = np.empty((nx, nx))  # the buffer the next step writes into (swapped after each step)
     nav[start_row] = x
-    ep_row[0] = start_row
-    ep_Pm[0] = P
-    ep_Pp[0] = P
-    ep_Phi[0] = 0.0
-    for i in range(nx):
-        ep_Phi[0, i, i] = 1.0
-    n_ep = 1
-    dtheta = np.zeros(3)
-    dvel = np.zeros(3)
-    dtheta_prev = np.zeros(3)
-    dvel_prev = np.zeros(3)
-    C = np.empty((3, 3))
-    quat_to_dcm(x[X_QUAT:X_QUAT + 4], C)
-    C_start = np.empty((3, 3))
-    C_mid = np.empty((3, 3))
-    u = np.empty(3)
-    f_row = np.empty(3)
-    C_sum = np.zeros((3, 3))
-    f_sum = np.zeros(3)
-    count = 0
+    _open_first_epoch(start_row, P, rec)
+    quat_to_dcm(x[X_QUAT:X_QUAT + 4], s.C)
     x_epoch = x.copy()
-    t_epoch = t[start_row]
-    k_fix = 0
-    while k_fix < m and fix_row[k_fix] <= start_row:
-        k_fix += 1
-    rejects = 0
-    first_rejected = -1
-    after_outage = False
-    gap_since_fix = False   # an IMU gap (raised navigation noise) since the last fix
-    fixes_since_outage = DRIFT_WINDOW  # fixes processed since the last GNSS outage or IMU gap
-    t_last_fix = t[start_row]
-    if k_fix > 0:
-        t_last_fix = t[fix_row[k_fix - 1]] - fix_lag[k_fix - 1]
-    t_unit = t[start_row]
-    r_unit = np.array([noise[R_UNIT_LEVEL], noise[R_UNIT_LEVEL], noise[R_UNIT_YAW]])
-    r_scale = np.array([noise[R_SCALE_H], noise[R_SCALE_H], noise[R_SCALE_V]])
-    r_nhc = np.array([noise[R_NHC], noise[R_NHC], 1.0])
-    r_zupt = np.array([noise[R_ZUPT], noise[R_ZUPT], noise[R_ZUPT]])
-    w_sum = np.zeros(3)
-    F = np.zeros((nx, nx))
-    Phi = np.zeros((nx, nx))
-    Qd = np.zeros((nx, nx))
-    # P and the buffer the next step writes into (swapped after each step), scratch for the products
-    P_next = np.empty((nx, nx))
-    work = np.empty((9, nx, nx))
-    mech_work = np.empty((MECHANISE_WORK, 4))  # the strapdown's scratch, reused at every row
     for k in range(start_row + 1, n):
-        dt = t[k] - t[k - 1]
-        if dt > max_gap:
+        if t[k] - t[k - 1] > options[OPT_MAX_GAP]:
             # no IMU data across the gap: close the epoch at the row before it and stop
-            if count > 0:
-                propagate(P, x_epoch, C_sum / count, f_sum / count, noise, t[k - 1] - t_epoch, q_scale[k - 1],
-                          F, Phi, Qd, work, P_next)
-                P, P_next = P_next, P
-                ep_row[n_ep] = k - 1
-                ep_dT[n_ep] = t[k - 1] - t_epoch
-                ep_Pm[n_ep] = P
-                ep_Pp[n_ep] = P
-                ep_Phi[n_ep] = Phi
-                n_ep += 1
-            stop[0] = k - 1
-            stop[2] = STOP_GAP
+            if book[COUNT] > 0:
+                P, P_next = _propagate_to(k - 1, imu, x_epoch, P, P_next, noise, rec, s, book, clock)
+                rec.ep_Pp[book[N_EP]] = P
+                book[N_EP] += 1
+            _stop(rec, k - 1, rec.stop[1], STOP_GAP)
             break
-        if q_scale[k, 0] > 1.0:
-            gap_since_fix = True
-        increments(gyro[k - 1], gyro[k], accel[k - 1], accel[k], dt, x, dtheta, dvel)
-        if k == start_row + 1:
-            dtheta_prev[:] = dtheta
-            dvel_prev[:] = dvel
-        C_start[:, :] = C
-        mechanise_into(x, dtheta, dvel, dtheta_prev, dvel_prev, dt, C, mech_work)
-        dtheta_prev[:] = dtheta
-        dvel_prev[:] = dvel
-        # the unit's nominal attitude errors
-        x[X_UNIT_YAW] += x[X_UNIT_DRIFT] * dt
-        decay = math.exp(-dt * noise[INV_TAU_UNIT])
-        x[X_UNIT_LEVEL] *= decay
-        x[X_UNIT_LEVEL + 1] *= decay
-        decay = math.exp(-dt * noise[INV_TAU_GNSS])
-        for i in range(3):
-            x[X_GNSS_GM + i] *= decay
-        # the interval's mean attitude and specific force, for F; per component (no temporaries: every row)
-        for i in range(3):
-            u[i] = dvel[i] / dt
-            for j in range(3):
-                C_mid[i, j] = 0.5 * (C_start[i, j] + C[i, j])
-                C_sum[i, j] += C_mid[i, j]
-        np.dot(C_mid, u, f_row)
-        for i in range(3):
-            f_sum[i] += f_row[i]
-            w_sum[i] += gyro[k, i]
-        count += 1
-        has_fix = k_fix < m and fix_row[k_fix] == k
-        if count >= stride or has_fix or k == n - 1:
-            propagate(P, x_epoch, C_sum / count, f_sum / count, noise, t[k] - t_epoch, q_scale[k], F, Phi, Qd, work,
-                      P_next)
-            P, P_next = P_next, P
-            if not math.isfinite(np.trace(P) + np.sum(x)):
-                # numerically gone (a wild correction, an absurd lever arm): a divergence, never a NaN passed on
-                stop[0] = ep_row[n_ep - 1]
-                stop[1] = max(k_fix - 1, 0)
-                stop[2] = STOP_DIVERGED
-                break
-            ep_row[n_ep] = k
-            ep_dT[n_ep] = t[k] - t_epoch
-            ep_Pm[n_ep] = P
-            ep_Phi[n_ep] = Phi
-            dx_total = np.zeros(nx)
-            if nhc:
-                z, H = nhc_innovation(x, C, nx)
-                # the constraint holds at the rear axle, up to NHC_LEVER from the IMU: the body's rotation moves
-                # the IMU sideways (yaw rate) and up and down (pitch rate) by that much more
-                r_turn = r_nhc.copy()
-                r_turn[0] += (NHC_LEVER * (gyro[k, 2] - x[X_BG + 2])) ** 2
-                r_turn[1] += (NHC_LEVER * (gyro[k, 1] - x[X_BG + 1])) ** 2
-                S = innovation_covariance(P, H, r_turn)
-                S2 = S[:2, :2]
-                S2_inv = np.linalg.inv(S2)
-                d2 = z[:2] @ S2_inv @ z[:2]
-                ep_loglik[n_ep, 2] -= 0.5 * (math.log(np.linalg.det(S2)) + d2 + 2.0 * math.log(2.0 * math.pi))
-                aux_epoch[n_aux] = n_ep
-                aux_kind[n_aux] = AUX_NHC
-                aux_z[n_aux] = z + H @ dx_total
-                aux_H[n_aux] = H
-                S_inv = np.zeros((3, 3))
-                S_inv[:2, :2] = S2_inv
-                # a ground vehicle's constraint is gated only against gross violations (a skid): gating it like a
-                # fix would drop it exactly when the heading drifts and it carries the most information
-                if d2 <= NHC_GATE:
-                    aux_status[n_aux] = FIX_USED
-                    kalman_update(x, P, H, z, S_inv, C, dx_total, work[0], P_next)
-                    P, P_next = P_next, P
-                else:
-                    aux_status[n_aux] = FIX_REJECTED
-                aux_r[n_aux] = r_turn
-                n_aux += 1
-            if still[k]:
-                # a vehicle read as still that moves after all is refused
-                z, H = zupt_innovation(x, nx)
-                P, P_next, _ = aux_update(x, P, P_next, z, H, r_zupt, ZUPT_GATE, C, dx_total, work[0], n_ep, AUX_ZUPT,
-                                          n_aux, aux_epoch, aux_kind, aux_z, aux_H, aux_status, aux_r)
-                n_aux += 1
-                # and no rotation: the mean rate over the epoch is the gyro bias (and the Earth's rate)
-                z, H = zaru_innovation(x, C, w_sum / count, nx)
-                r_zaru = np.full(3, noise[R_ZARU] / count)
-                P, P_next, _ = aux_update(x, P, P_next, z, H, r_zaru, ZUPT_GATE, C, dx_total, work[0], n_ep, AUX_ZARU,
-                                          n_aux, aux_epoch, aux_kind, aux_z, aux_H, aux_status, aux_r)
-                n_aux += 1
-            if unit_aiding and (has_fix or t[k] - t_unit >= 1.0):
-                t_unit = t[k]
-                z, H = unit_attitude_innovation(x, C, unit_rpy[k], nx)
-                S = innovation_covariance(P, H, r_unit)
-                # every processed update counts, gated or not: a filter that gates its data out must not look good
-                ep_loglik[n_ep, 1] -= 0.5 * (math.log(np.linalg.det(S)) + 3.0 * math.log(2.0 * math.pi))
-                P, P_next, d2 = aux_update(x, P, P_next, z, H, r_unit, gate_chi2, C, dx_total, work[0], n_ep,
-                                           AUX_UNIT, n_aux, aux_epoch, aux_kind, aux_z, aux_H, aux_status, aux_r)
-                ep_loglik[n_ep, 1] -= 0.5 * d2
-                n_aux += 1
-            while k_fix < m and fix_row[k_fix] == k:
-                t_fix = t[k] - fix_lag[k_fix]
-                if t_fix - t_last_fix > outage_s or gap_since_fix:
-                    fixes_since_outage = 0
-                z, H = gnss_innovation(x, C, z_fix[k_fix], fix_lag[k_fix], nx)
-                r = r_fix[k_fix] * r_scale
-                S = innovation_covariance(P, H, r)
-                add_fix_correlation(S, r, rho_fix[k_fix])
-                S_inv = np.linalg.inv(S)
-                d2 = z @ S_inv @ z
-                fix_epoch[k_fix] = n_ep
-                fix_z[k_fix] = z + H @ dx_total
-                fix_H[k_fix] = H
-                fix_S[k_fix] = S
-                fix_d2[k_fix] = d2
-                ep_loglik[n_ep, 0] -= 0.5 * (math.log(np.linalg.det(S)) + d2 + 3.0 * math.log(2.0 * math.pi))
-                # re-acquisition: the first fixes after an outage or an IMU gap correct the drift itself; only a
-                # gross outlier is gated there
-                gate = REACQUIRE_GATE if fixes_since_outage < REACQUIRE_FIXES else gate_chi2
-                if d2 <= gate:
-                    fix_status[k_fix] = FIX_USED
-                    rejects = 0
-                    kalman_update(x, P, H, z, S_inv, C, dx_total, work[0], P_next)
-                    P, P_next = P_next, P
-                else:
-                    fix_status[k_fix] = FIX_REJECTED
-                    if rejects == 0:
-                        first_rejected = k_fix
-                        after_outage = fixes_since_outage < DRIFT_WINDOW
-                    rejects += 1
-                fixes_since_outage += 1
-                t_last_fix = t_fix
-                gap_since_fix = False
-                k_fix += 1
-            for i in range(nx):
-                for j in range(nx):
-                    P_next[i, j] = 0.5 * (P[i, j] + P[j, i])
-            P, P_next = P_next, P
-            ep_Pp[n_ep] = P
-            ep_dx[n_ep] = dx_total
-            n_ep += 1
-            C_sum[:, :] = 0.0
-            w_sum[:] = 0.0
-            f_sum[:] = 0.0
-            count = 0
-            x_epoch[:] = x
-            t_epoch = t[k]
+        _strapdown_row(k, imu, k == start_row + 1, x, noise, s, book)
+        has_fix = book[K_FIX] < fix_row.shape[0] and fix_row[book[K_FIX]] == k
+        if not (book[COUNT] >= stride or has_fix or k == n - 1):
             nav[k] = x
-            if max_rejects > 0 and after_outage and rejects >= DRIFT_REJECTS:
-                stop[0] = k
-                stop[1] = first_rejected
-                stop[2] = STOP_DRIFT
-                break
-            if max_rejects > 0 and rejects >= max_rejects:
-                stop[0] = k
-                stop[1] = first_rejected
-                stop[2] = STOP_DIVERGED
-                break
-        else:
-            nav[k] = x
-    return (ep_row[:n_ep], ep_dT[:n_ep], ep_Pm[:n_ep], ep_Pp[:n_ep], ep_Phi[:n_ep], ep_dx[:n_ep], fix_epoch,
-            fix_z, fix_H, fix_S, fix_d2, fix_status, aux_epoch[:n_aux], aux_kind[:n_aux], aux_z[:n_aux],
-            aux_H[:n_aux], aux_status[:n_aux], aux_r[:n_aux], stop, ep_loglik[:n_ep])
+            continue
+        P, P_next = _propagate_to(k, imu, x_epoch, P, P_next, noise, rec, s, book, clock)
+        if not math.isfinite(np.trace(P) + np.sum(x)):
+            # numerically gone (a wild correction, an absurd lever arm): a divergence, never a NaN passed on
+            _stop(rec, rec.ep_row[book[N_EP] - 1], max(book[K_FIX] - 1, 0), STOP_DIVERGED)
+            break
+        dx_total = np.zeros(nx)
+        P, P_next = _aid_epoch(k, imu, fixes, has_fix, x, P, P_next, dx_total, noise, options, rec, s, book, clock)
+        P, P_next = _close_epoch(k, t, x, x_epoch, P, P_next, dx_total, nav, rec, s, book, clock)
+        if _stopped_by_rejects(k, options, rec, book):
+            break
+    e, a = book[N_EP], book[N_AUX]
+    return (rec.ep_row[:e], rec.ep_dT[:e], rec.ep_Pm[:e], rec.ep_Pp[:e], rec.ep_Phi[:e], rec.ep_dx[:e],
+            rec.fixes.epoch, rec.fixes.z, rec.fixes.H, rec.fix_S, rec.fix_d2, rec.fixes.status, rec.aux.epoch[:a],
+            rec.aux_kind[:a], rec.aux.z[:a], rec.aux.H[:a], rec.aux.status[:a], rec.aux_r[:a], rec.stop,
+            rec.ep_loglik[:e])
 
 
 @njit(cache=True)
@@ -870,6 +1055,137 @@ def prior_shift(ep_Pm, ep_Pp, ep_Phi, seg_start, mu):
     return m_plus, m_minus
 
 
+class SmootherScratch(NamedTuple):
+    """The smoother's work buffers (nx, nx) and (nx,), allocated once: Φ P⁺, P_next - P⁻ and two products, the
+    smoothed P, the process noise Q_d and its posterior covariance; the process noise, a predicted mean and a
+    post-update error."""
+
+    PhiPp: np.ndarray
+    D: np.ndarray
+    M1: np.ndarray
+    M2: np.ndarray
+    P_s: np.ndarray
+    Qd: np.ndarray
+    cov_w: np.ndarray
+    w: np.ndarray
+    m_pred: np.ndarray
+    post_total: np.ndarray
+
+
+@njit(cache=True)
+def _smooth_epoch(j: int, ep_Pm: np.ndarray, ep_Pp: np.ndarray, ep_Phi: np.ndarray, ep_dx: np.ndarray,
+                  m_plus: np.ndarray, err_post: np.ndarray, err_pre: np.ndarray, shift: np.ndarray,
+                  s: SmootherScratch) -> np.ndarray:
+    """One RTS step back from epoch j+1 to j: the smoothed errors ``err_post[j]``, ``err_pre[j]``, the shift
+    ``shift[j]`` and the smoothed covariance (into ``s.P_s``; ``ep_Pp[j]`` still holds P⁺). Returns the gain
+    A = P⁺_j Φᵀ (P⁻_{j+1})⁻¹."""
+    nx = ep_Pp.shape[1]
+    Phi = ep_Phi[j + 1]
+    P_plus = ep_Pp[j]
+    P_minus = ep_Pm[j + 1]
+    # A by a solve with the symmetric P-
+    np.dot(Phi, P_plus, s.PhiPp)
+    A = np.linalg.solve(P_minus, s.PhiPp).T
+    np.dot(A, err_pre[j + 1], err_post[j])
+    for i in range(nx):
+        err_pre[j, i] = ep_dx[j, i] + err_post[j, i]
+    np.dot(Phi, m_plus[j], s.m_pred)
+    for i in range(nx):
+        s.m_pred[i] = shift[j + 1, i] - s.m_pred[i]
+    np.dot(A, s.m_pred, shift[j])
+    for i in range(nx):
+        shift[j, i] += m_plus[j, i]
+    P_next = ep_Pp[j + 1]
+    for a in range(nx):
+        for b in range(nx):
+            s.D[a, b] = P_next[a, b] - P_minus[a, b]
+    np.dot(A, s.D, s.M1)
+    np.dot(s.M1, A.T, s.M2)
+    for a in range(nx):
+        for b in range(nx):
+            s.M1[a, b] = P_plus[a, b] + s.M2[a, b]
+    for a in range(nx):
+        for b in range(nx):
+            s.P_s[a, b] = 0.5 * (s.M1[a, b] + s.M1[b, a])
+    return A
+
+
+@njit(cache=True)
+def _noise_blocks() -> tuple[list, np.ndarray]:
+    """The error-state indices of every process-noise block whose EM statistics are added up, and its B_* id."""
+    blocks = [np.array([POS, POS + 1, VEL, VEL + 1]), np.array([POS + 2, VEL + 2]), np.array([ATT, ATT + 1]),
+              np.array([ATT + 2]), np.array([BG, BG + 1, BG + 2]), np.array([BA, BA + 1, BA + 2]),
+              np.array([UNIT_LEVEL, UNIT_LEVEL + 1]), np.array([UNIT_YAW, UNIT_DRIFT]),
+              np.array([GNSS_GM, GNSS_GM + 1]), np.array([GNSS_GM + 2])]
+    block_ids = np.array([B_VEL_H, B_VEL_V, B_ATT_H, B_ATT_V, B_BG, B_BA, B_UNIT_LEVEL, B_UNIT_DRIFT, B_GNSS_GM_H,
+                          B_GNSS_GM_V])
+    return blocks, block_ids
+
+
+@njit(cache=True)
+def _process_noise_statistics(j: int, A: np.ndarray, ep_Pm: np.ndarray, ep_Pp: np.ndarray, ep_Phi: np.ndarray,
+                              err_post: np.ndarray, err_pre: np.ndarray, shift: np.ndarray, pooled: bool,
+                              blocks: list, block_ids: np.ndarray, s: SmootherScratch, stats: np.ndarray) -> None:
+    """Add the EM statistics of the process noise between epochs j and j+1 (after :func:`_smooth_epoch`, before
+    ``ep_Pp[j]`` receives the smoothed covariance), per block, or all to B_OUTAGE when ``pooled``:
+    w = ε⁻_{j+1} - Φ ε⁺_j, its mean and posterior covariance."""
+    nx = ep_Pp.shape[1]
+    Phi = ep_Phi[j + 1]
+    P_minus = ep_Pm[j + 1]
+    P_next = ep_Pp[j + 1]
+    for i in range(nx):
+        s.post_total[i] = err_post[j, i] + shift[j, i]
+    np.dot(Phi, s.post_total, s.w)
+    for i in range(nx):
+        s.w[i] = err_pre[j + 1, i] + shift[j + 1, i] - s.w[i]
+    np.dot(s.PhiPp, Phi.T, s.M1)  # Φ P⁺ Φᵀ
+    for a in range(nx):
+        for b in range(nx):
+            s.Qd[a, b] = P_minus[a, b] - s.M1[a, b]
+    np.dot(P_next, A.T, s.M1)  # L = Cov(ε⁻_{j+1}, ε⁺_j | all data)
+    np.dot(Phi, s.M1.T, s.D)  # Φ Lᵀ
+    np.dot(Phi, s.P_s, s.M1)
+    np.dot(s.M1, Phi.T, s.M2)  # Φ P_s Φᵀ
+    for a in range(nx):
+        for b in range(nx):
+            s.cov_w[a, b] = P_next[a, b] + s.M2[a, b] - s.D[a, b] - s.D[b, a]
+    for b in range(len(blocks)):
+        _block_statistic(s.w, s.cov_w, s.Qd, blocks[b], stats, B_OUTAGE if pooled else block_ids[b])
+
+
+@njit(cache=True)
+def _measurement_statistics(fixes: UpdateLog, r_fix: np.ndarray, noise: np.ndarray, aux: UpdateLog,
+                            aux_kind: np.ndarray, aux_r: np.ndarray, err_pre: np.ndarray, ep_P: np.ndarray,
+                            stats: np.ndarray) -> None:
+    """Add the EM statistics of the applied GNSS fixes and auxiliary updates: their smoothed residuals against
+    the pre-update errors ``err_pre`` (E, nx) with the smoothed covariances ``ep_P`` (E, nx, nx)."""
+    r_scale = np.array([noise[R_SCALE_H], noise[R_SCALE_H], noise[R_SCALE_V]])
+    for k in range(fixes.epoch.shape[0]):
+        if fixes.status[k] != FIX_USED:
+            continue
+        j = fixes.epoch[k]
+        H = fixes.H[k]
+        e = fixes.z[k] - H @ err_pre[j]
+        cov = H @ ep_P[j] @ H.T
+        # per axis even for a fix with correlated axes (ekf_forward's rho_fix): E[e_i^2 + cov_ii] = s r_i holds
+        # whatever the correlations, so the scale s stays a moment estimate, not the exact M-step of R(s)
+        r = r_fix[k] * r_scale
+        _measurement_statistic(e, cov, r, 0, 2, stats, B_GNSS_H)
+        _measurement_statistic(e, cov, r, 2, 3, stats, B_GNSS_V)
+    for k in range(aux.epoch.shape[0]):
+        if aux.status[k] != FIX_USED:
+            continue
+        j = aux.epoch[k]
+        H = aux.H[k]
+        e = aux.z[k] - H @ err_pre[j]
+        cov = H @ ep_P[j] @ H.T
+        if aux_kind[k] == AUX_UNIT:
+            _measurement_statistic(e, cov, aux_r[k], 0, 2, stats, B_UNIT_R_LEVEL)
+            _measurement_statistic(e, cov, aux_r[k], 2, 3, stats, B_UNIT_R_YAW)
+        elif aux_kind[k] == AUX_NHC:
+            _measurement_statistic(e, cov, aux_r[k], 0, 2, stats, B_NHC)
+
+
 @njit(cache=True)
 def rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, ep_outage, noise, fix_epoch, fix_z, fix_H, r_fix,
                  fix_status, aux_epoch, aux_kind, aux_z, aux_H, aux_status, aux_r, want_stats, m_plus):
@@ -879,11 +1195,11 @@ def rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, ep_outage, noise
     of the interval ending at an epoch with ``ep_outage[j]`` (inside a GNSS outage) counts towards B_OUTAGE, all
     blocks pooled, instead of its own blocks. ``m_plus`` (E, nx) is the filter's error mean after each epoch's
     updates beyond the zero the closed loop leaves (:func:`prior_shift`: a prior mean other than the nominal
-    start); zeros for none. Returns per
-    epoch the smoothed error of the post-update nominal (E, nx) and of the pre-update nominal (E, nx);
-    ``ep_Pp`` then holds the smoothed covariances. With ``want_stats``, also the EM statistics (N_BLOCKS, 3):
-    per noise block the sum of squared normalised smoothed residuals, the sum of the normalised posterior
-    variances (trace terms) and the number of scalar residuals.
+    start); zeros for none. The fix and auxiliary records are :func:`ekf_forward`'s (``r_fix`` its variances
+    before the R_SCALE factors); ``ep_dT`` is not used. Returns per epoch the smoothed error of the post-update
+    nominal (E, nx) and of the pre-update nominal (E, nx); ``ep_Pp`` then holds the smoothed covariances. With
+    ``want_stats``, also the EM statistics (N_BLOCKS, 3): per noise block the sum of squared normalised smoothed
+    residuals, the sum of the normalised posterior variances (trace terms) and the number of scalar residuals.
     """
     n_ep = ep_Pp.shape[0]
     nx = ep_Pp.shape[1]
@@ -894,107 +1210,28 @@ def rts_backward(ep_dT, ep_Pm, ep_Pp, ep_Phi, ep_dx, seg_start, ep_outage, noise
     shift[n_ep - 1] = m_plus[n_ep - 1]
     stats = np.zeros((N_BLOCKS, 3))
     err_pre[n_ep - 1] = ep_dx[n_ep - 1]
-    blocks = [np.array([POS, POS + 1, VEL, VEL + 1]), np.array([POS + 2, VEL + 2]), np.array([ATT, ATT + 1]),
-              np.array([ATT + 2]), np.array([BG, BG + 1, BG + 2]), np.array([BA, BA + 1, BA + 2]),
-              np.array([UNIT_LEVEL, UNIT_LEVEL + 1]), np.array([UNIT_YAW, UNIT_DRIFT]),
-              np.array([GNSS_GM, GNSS_GM + 1]), np.array([GNSS_GM + 2])]
-    block_ids = np.array([B_VEL_H, B_VEL_V, B_ATT_H, B_ATT_V, B_BG, B_BA, B_UNIT_LEVEL, B_UNIT_DRIFT, B_GNSS_GM_H,
-                          B_GNSS_GM_V])
-    # scratch (no allocation per epoch besides the solve's): Φ P⁺, P_next - P⁻, products, the smoothed P
-    PhiPp = np.empty((nx, nx))
-    D = np.empty((nx, nx))
-    M1 = np.empty((nx, nx))
-    M2 = np.empty((nx, nx))
-    P_s = np.empty((nx, nx))
-    Qd = np.empty((nx, nx))
-    cov_w = np.empty((nx, nx))
-    w = np.empty(nx)
-    m_pred = np.empty(nx)
-    post_total = np.empty(nx)
+    blocks, block_ids = _noise_blocks()
+    s = SmootherScratch(np.empty((nx, nx)), np.empty((nx, nx)), np.empty((nx, nx)), np.empty((nx, nx)),
+                        np.empty((nx, nx)), np.empty((nx, nx)), np.empty((nx, nx)), np.empty(nx), np.empty(nx),
+                        np.empty(nx))
     for j in range(n_ep - 2, -1, -1):
         if seg_start[j + 1]:
             err_post[j] = 0.0
             err_pre[j] = ep_dx[j]
             shift[j] = m_plus[j]
             continue
-        Phi = ep_Phi[j + 1]
-        P_plus = ep_Pp[j]  # read before ep_Pp[j] receives the smoothed covariance, below
-        P_minus = ep_Pm[j + 1]
-        # A = P+_j Φᵀ (P-_{j+1})⁻¹, by a solve with the symmetric P-
-        np.dot(Phi, P_plus, PhiPp)
-        A = np.linalg.solve(P_minus, PhiPp).T
-        np.dot(A, err_pre[j + 1], err_post[j])
-        for i in range(nx):
-            err_pre[j, i] = ep_dx[j, i] + err_post[j, i]
-        np.dot(Phi, m_plus[j], m_pred)
-        for i in range(nx):
-            m_pred[i] = shift[j + 1, i] - m_pred[i]
-        np.dot(A, m_pred, shift[j])
-        for i in range(nx):
-            shift[j, i] += m_plus[j, i]
-        P_next = ep_Pp[j + 1]
-        for a in range(nx):
-            for b in range(nx):
-                D[a, b] = P_next[a, b] - P_minus[a, b]
-        np.dot(A, D, M1)
-        np.dot(M1, A.T, M2)
-        for a in range(nx):
-            for b in range(nx):
-                M1[a, b] = P_plus[a, b] + M2[a, b]
-        for a in range(nx):
-            for b in range(nx):
-                P_s[a, b] = 0.5 * (M1[a, b] + M1[b, a])
+        A = _smooth_epoch(j, ep_Pm, ep_Pp, ep_Phi, ep_dx, m_plus, err_post, err_pre, shift, s)
         if want_stats:
-            # process noise between epochs j and j+1: w = ε⁻_{j+1} - Φ ε⁺_j, its mean and posterior covariance
-            for i in range(nx):
-                post_total[i] = err_post[j, i] + shift[j, i]
-            np.dot(Phi, post_total, w)
-            for i in range(nx):
-                w[i] = err_pre[j + 1, i] + shift[j + 1, i] - w[i]
-            np.dot(PhiPp, Phi.T, M1)  # Φ P⁺ Φᵀ
-            for a in range(nx):
-                for b in range(nx):
-                    Qd[a, b] = P_minus[a, b] - M1[a, b]
-            np.dot(P_next, A.T, M1)  # L = Cov(ε⁻_{j+1}, ε⁺_j | all data)
-            np.dot(Phi, M1.T, D)  # Φ Lᵀ
-            np.dot(Phi, P_s, M1)
-            np.dot(M1, Phi.T, M2)  # Φ P_s Φᵀ
-            for a in range(nx):
-                for b in range(nx):
-                    cov_w[a, b] = P_next[a, b] + M2[a, b] - D[a, b] - D[b, a]
-            for b in range(len(blocks)):
-                _block_statistic(w, cov_w, Qd, blocks[b], stats, B_OUTAGE if ep_outage[j + 1] else block_ids[b])
-        ep_Pp[j] = P_s
+            _process_noise_statistics(j, A, ep_Pm, ep_Pp, ep_Phi, err_post, err_pre, shift, ep_outage[j + 1],
+                                      blocks, block_ids, s, stats)
+        ep_Pp[j] = s.P_s
     for j in range(n_ep):
         for i in range(nx):
             err_post[j, i] += shift[j, i]
             err_pre[j, i] += shift[j, i]
     if want_stats:
-        r_scale = np.array([noise[R_SCALE_H], noise[R_SCALE_H], noise[R_SCALE_V]])
-        for k in range(fix_epoch.shape[0]):
-            if fix_status[k] != FIX_USED:
-                continue
-            j = fix_epoch[k]
-            H = fix_H[k]
-            e = fix_z[k] - H @ err_pre[j]
-            cov = H @ ep_Pp[j] @ H.T
-            # per axis even for a fix with correlated axes (ekf_forward's rho_fix): E[e_i^2 + cov_ii] = s r_i holds
-            # whatever the correlations, so the scale s stays a moment estimate, not the exact M-step of R(s)
-            r = r_fix[k] * r_scale
-            _measurement_statistic(e, cov, r, 0, 2, stats, B_GNSS_H)
-            _measurement_statistic(e, cov, r, 2, 3, stats, B_GNSS_V)
-        for k in range(aux_epoch.shape[0]):
-            if aux_status[k] != FIX_USED:
-                continue
-            j = aux_epoch[k]
-            H = aux_H[k]
-            e = aux_z[k] - H @ err_pre[j]
-            cov = H @ ep_Pp[j] @ H.T
-            if aux_kind[k] == AUX_UNIT:
-                _measurement_statistic(e, cov, aux_r[k], 0, 2, stats, B_UNIT_R_LEVEL)
-                _measurement_statistic(e, cov, aux_r[k], 2, 3, stats, B_UNIT_R_YAW)
-            elif aux_kind[k] == AUX_NHC:
-                _measurement_statistic(e, cov, aux_r[k], 0, 2, stats, B_NHC)
+        _measurement_statistics(UpdateLog(fix_epoch, fix_z, fix_H, fix_status), r_fix, noise,
+                                UpdateLog(aux_epoch, aux_z, aux_H, aux_status), aux_kind, aux_r, err_pre, ep_Pp, stats)
     return err_post, err_pre, stats
 
 

@@ -19,6 +19,8 @@ One order for the error state and the nominal state:
   states.
 """
 
+from georef.distributions import CHI2_3DOF_99_9
+
 # ---- error state ------------------------------------------------------------------------------------------
 POS = 0
 VEL = 3
@@ -98,12 +100,22 @@ AUX_UNIT = 0       # the unit's roll, pitch, yaw (3)
 AUX_NHC = 1        # a ground vehicle's zero lateral and vertical body velocity (2)
 AUX_ZUPT = 2       # a vehicle standing still: zero NED velocity (3)
 AUX_ZARU = 3       # a vehicle standing still: no angular rate but the Earth's (3), which pins the gyro bias
-#: chi-square(3) gate of the zero-velocity update (1 - 1e-3): a vehicle read as still that moves is refused
-ZUPT_GATE = 16.27
+#: chi-square(3) gate of the zero-velocity update (99.9 %): a vehicle read as still that moves is refused
+ZUPT_GATE = CHI2_3DOF_99_9
 #: how far from the IMU the point is at which a ground vehicle has no lateral or vertical velocity [m]
 NHC_LEVER = 2.0
 #: chi-square(2) gate of the NHC update (1 - 1e-20)
 NHC_GATE = 92.1
+
+# ---- options of a forward pass (ins_kernel.ekf_forward's ``options`` vector) ---------------------------------
+OPT_STRIDE = 0       # IMU rows between covariance epochs
+OPT_GATE = 1         # chi-square gate of a GNSS fix and of the unit's attitude
+OPT_MAX_REJECTS = 2  # GNSS fixes rejected in a row that stop the pass (0: never)
+OPT_MAX_GAP = 3      # s, an IMU gap longer than this stops the pass
+OPT_OUTAGE_S = 4     # s, a GNSS outage longer than this opens the drift window (DRIFT_WINDOW)
+OPT_UNIT_AIDING = 5  # 1.0: fuse the unit's roll, pitch, yaw
+OPT_NHC = 6          # 1.0: fuse a ground vehicle's non-holonomic constraint
+N_OPTIONS = 7
 
 # ---- covariance propagation ---------------------------------------------------------------------------------
 #: the longest step [s] an epoch interval is propagated in; epochs are at most 0.5 s apart at the rates used, so

@@ -38,11 +38,9 @@ GNSS_GM_FLOOR_M = 1e-3
 #: from at most this many 4-s segments spread over the log
 MOTION_BAND_HZ = 2.0
 MAX_SEGMENTS = 64
-#: pseudo-residuals of the prior in the MAP step. Measured with 1, 3 and 10: lighter priors let the weakly
-#: informed blocks (bias drives, the unit's errors) follow the data further, which made the pitch inside 40-s
-#: GNSS outages honest (88 % of errors inside 2 sigma over 10 flights with 10, 93 % with 3, 99 % with 1) but
-#: cost accuracy elsewhere: KITTI's 20-s outages 0.72 m with 10, 0.90 m with 3 and 1; today's flights' yaw
-#: 0.058, 0.059, 0.064 deg.
+#: pseudo-residuals of the prior in the MAP step. Lighter priors let the weakly informed blocks (bias drives, the
+#: unit's errors) follow the data further, which made the pitch inside GNSS outages more honest but cost accuracy
+#: elsewhere (KITTI's outages, the simulated flights' yaw): docs/performance.md, "INS noise model".
 PRIOR_WEIGHT = 10.0
 #: one update changes a block by at most this factor
 MAX_STEP_FACTOR = 10.0
@@ -100,7 +98,7 @@ class NoiseModel:
     r_zaru: float = 1e-4
 
     def as_array(self) -> np.ndarray:
-        """The kernel's noise vector (``ins_kernel.N_NOISE`` entries in the order of its named indices)."""
+        """The kernel's noise vector (``ins_layout.N_NOISE`` entries in the order of its named indices)."""
         out = np.full(layout.N_NOISE, np.nan)
         out[layout.Q_VEL_H], out[layout.Q_VEL_V] = self.q_vel_h, self.q_vel_v
         out[layout.Q_ATT_H], out[layout.Q_ATT_V] = self.q_att_h, self.q_att_v
@@ -175,7 +173,7 @@ def spectral_white_noise(time: np.ndarray, gyro: np.ndarray, accel: np.ndarray,
     narrow-band lines (a rotor's blade-pass frequency and its aliases), which integrate to almost nothing;
     broad-band vibration that does act like white noise raises it. Returns (q_vel_h, q_vel_v [m^2/s^3], q_att_h,
     q_att_v [rad^2/s]), with the body x, y axes taken as horizontal. (Welch's method, written out with numpy:
-    scipy's per-segment detrending took 0.44 s on a 15-minute log.)
+    scipy's per-segment detrending was slow, ``docs/performance.md``, "INS noise model".)
     """
     dt = float(np.median(np.diff(time)))
     rate = 1.0 / dt

@@ -33,6 +33,7 @@ from georef.frames.kernels import (
     quat_normalise,
     quat_to_dcm,
     transport_rate,
+    trapezoid_increment,
 )
 from georef.fusion.ins_layout import X_BA, X_BG, X_HGT, X_LAT, X_LON, X_QUAT, X_VEL
 
@@ -40,10 +41,10 @@ from georef.fusion.ins_layout import X_BA, X_BG, X_HGT, X_LAT, X_LON, X_QUAT, X_
 @njit(cache=True)
 def increments(gyro_prev: np.ndarray, gyro: np.ndarray, accel_prev: np.ndarray, accel: np.ndarray, dt: float,
                x: np.ndarray, dtheta: np.ndarray, dvel: np.ndarray) -> None:
-    """Bias-corrected angle and velocity increments of an interval from point samples (trapezoid)."""
-    for i in range(3):
-        dtheta[i] = (0.5 * (gyro_prev[i] + gyro[i]) - x[X_BG + i]) * dt
-        dvel[i] = (0.5 * (accel_prev[i] + accel[i]) - x[X_BA + i]) * dt
+    """Angle [rad] and velocity [m/s] increments of an interval from point samples (trapezoid), corrected by the
+    biases of the nominal state ``x`` (:func:`georef.frames.kernels.trapezoid_increment`)."""
+    trapezoid_increment(gyro_prev, gyro, x[X_BG:X_BG + 3], dt, dtheta)
+    trapezoid_increment(accel_prev, accel, x[X_BA:X_BA + 3], dt, dvel)
 
 
 @njit(cache=True)

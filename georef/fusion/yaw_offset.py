@@ -26,7 +26,7 @@ The model is linear in ``p0, v0, b_n, b`` for a given ``d``. Each window is solv
    comes from the full Jacobian at the solution, scaled by the a-posteriori variance factor.
 
 Both steps run compiled (:mod:`georef.fusion.yaw_offset_kernel`): a window solves about twenty small least-squares
-problems, and with numpy's per-call overhead the windows of a 15-minute flight took 0.19 s of CPU (0.04 s now).
+problems, and numpy's per-call overhead made them slow (``docs/method-ins.md``, section 10).
 
 Windows slide over the flight; a robust global fit gives the offset and its drift, and a kernel-weighted
 local-linear fit follows the drift.
@@ -180,8 +180,8 @@ def recover_yaw_offset(
     windows = window_offsets(gnss_time, gnss_lat_deg, gnss_lon_deg, gnss_height, imu_time, iacc_u, unit_rpy,
                              lever_arm_gnss, sigma_ne, window=window, step=step)
     # Overlapping windows share fixes, but each window's sigma already carries its a-posteriori variance
-    # factor; treated as independent, the offset and drift sigmas were still conservative over 20 simulated
-    # flights (rms error/sigma 0.87 and 0.65), so no further inflation is applied.
+    # factor; treated as independent, the offset and drift sigmas were still conservative over simulated flights
+    # (docs/performance.md, "Yaw-offset recovery"), so no further inflation is applied.
     overlap = 1.0
     ok = windows.accepted
     if ok.sum() == 0:

@@ -2,8 +2,8 @@
 
 The table is written with the standard library's ``csv`` module, cell by cell as pandas' ``DataFrame.to_csv``
 writes it (a float as numpy's shortest repr after rounding to the column's decimals, a missing value as an empty
-cell, the same quoting), so the file is the same byte for byte (``tests/test_exports.py`` compares the two) and
-a run that writes only the table never imports pandas (0.35-0.4 s).
+cell, the same quoting), so the file is the same byte for byte (``tests/io/test_exports.py`` compares the two) and
+a run that writes only the table never imports pandas (its import is slow: ``docs/performance.md``, "Imports").
 """
 
 from __future__ import annotations

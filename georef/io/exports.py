@@ -3,7 +3,7 @@
 Each writer takes the EO table of :mod:`georef.eo` and writes atomically. Every station format labels a row with
 its image file name (the ``image`` column of ``--image-names``; the frame id without it), writes the heights the
 run asked for (:class:`georef.frames.heights.OutputFrames`) and each consumer's own angles and sigmas. What each
-consumer defines, and the versions checked, are in ``docs/formats.md``; ``tests/test_exports.py`` reads every file
+consumer defines, and the versions checked, are in ``docs/formats.md``; ``tests/io/test_exports.py`` reads every file
 back with the consumer's own parsing code (ported, cited) or an independent validator (GDAL/OGR, fastkml):
 
 * ``metashape`` — Agisoft Metashape *Import Reference* CSV: label, easting, northing, height, ω, φ, κ, then the

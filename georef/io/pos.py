@@ -152,6 +152,33 @@ def read_pos(
     spelled = {role: table.names.get(names[role], names[role]) for role in POS_ROLES}
     lines = table.lines
 
+    _check_time_fields(path, data, lines, spelled)
+    times, repairs = pos_sample_times(data["trig_time"], data["sampl_time"], lines)
+    notices += _repair_notices(path, repairs, spelled)
+    time_column = f"{spelled['trig_time']}/{spelled['sampl_time']}"
+    rows = _without_duplicates(path, _Rows(times, lines, data), time_column, notices)
+    times, lines, data = rows.times, rows.lines, rows.data
+    check_increasing(path, times, lines, time_column)
+    counter = data.get("counter")
+    notices += check_time_jumps(path, times, lines, counter, time_column, spelled["counter"])
+    notices += _counter_notices(path, counter, lines, spelled)
+    _check_coordinates(path, data, lines, spelled)
+    check_ranges(path, data, lines, spelled)
+    notices += repair_spikes(path, data, lines, spelled)
+    gnss = extract_gnss_epochs(path, times, data["lat"], data["lon"], data["alt"], lines, rate_hz=gnss_rate_hz,
+                               ground_speed=data.get("gnss_speed"))
+    gnss_columns = f"{spelled['lat']}/{spelled['lon']}/{spelled['alt']}"
+    gnss, jump_notices = check_gnss_jumps(path, gnss, gnss_columns)
+    check_gnss_time_consistency(path, times, lines, gnss, time_column, 1.0 / gnss_rate_hz if gnss_rate_hz else None)
+    notices.extend(gnss.notices)
+    notices.extend(jump_notices)
+    return PosLog(path=path, time=times, data=data, lines=lines, gnss=gnss, time_repairs=repairs,
+                  notices=notices, column_names={role: spelled[role] for role in data}, dialect=table.dialect)
+
+
+def _check_time_fields(path: Path, data: dict[str, np.ndarray], lines: np.ndarray, spelled: dict[str, str]) -> None:
+    """SAMPL_TIME [us] within a second and TRIG_TIME [s x 100] within a day (:data:`TRIG_TIME_RANGE`), else an error
+    naming the first line outside."""
     sampl = data["sampl_time"]
     bad_sampl = np.flatnonzero((sampl < 0) | (sampl >= 1_000_000))
     if len(bad_sampl):
@@ -165,7 +192,11 @@ def read_pos(
         raise InputError(path, int(lines[i]), spelled["trig_time"],
                          f"TRIG_TIME {trig[i]:.10g} is outside a day (0..{TRIG_TIME_RANGE[1] - 1} hundredths of a "
                          "second)")
-    times, repairs = pos_sample_times(trig, sampl, lines)
+
+
+def _repair_notices(path: Path, repairs: TimeRepairReport, spelled: dict[str, str]) -> list[InputNotice]:
+    """Notices of the time repairs: the logger's TRIG_TIME quirk, a midnight roll-over."""
+    notices = []
     if repairs.n_quirks:
         notices.append(InputNotice(path, repairs.quirk_lines, spelled["trig_time"],
                                    f"TRIG_TIME logger quirk repaired {repairs.n_quirks} time(s) "
@@ -173,36 +204,54 @@ def read_pos(
     if repairs.midnight_lines:
         notices.append(InputNotice(path, repairs.midnight_lines, spelled["trig_time"],
                                    "midnight roll-over: later times continue past 86400 s"))
+    return notices
 
-    time_column = f"{spelled['trig_time']}/{spelled['sampl_time']}"
-    # Exact duplicate rows (same time and same values) are dropped and reported.
+
+@dataclass(frozen=True)
+class _Rows:
+    """A POS log's rows: ``times`` [s], 1-based file ``lines`` and ``data`` by role."""
+
+    times: np.ndarray
+    lines: np.ndarray
+    data: dict[str, np.ndarray]
+
+
+def _without_duplicates(path: Path, rows: _Rows, time_column: str, notices: list[InputNotice]) -> _Rows:
+    """The rows without exact duplicates (same time and same values), each dropped one reported in a notice added to
+    ``notices``; the same time with different values is an error."""
+    times, lines, data = rows.times, rows.lines, rows.data
     same_time = np.flatnonzero(np.diff(times) == 0) + 1
-    if len(same_time):
-        identical = np.ones(len(same_time), dtype=bool)
-        for values in data.values():
-            identical &= values[same_time] == values[same_time - 1]
-        if not identical.all():
-            i = same_time[~identical][0]
-            raise InputError(path, int(lines[i]), time_column,
-                             f"same time stamp as line {int(lines[i - 1])} but different values")
-        notices.append(InputNotice(path, lines[same_time].tolist(), None,
-                                   f"{len(same_time)} duplicate row(s) dropped (identical to the row before)"))
-        keep = np.ones(len(times), dtype=bool)
-        keep[same_time] = False
-        times, lines = times[keep], lines[keep]
-        data = {role: values[keep] for role, values in data.items()}
-    check_increasing(path, times, lines, time_column)
-    counter = data.get("counter")
-    notices += check_time_jumps(path, times, lines, counter, time_column, spelled["counter"])
+    if not len(same_time):
+        return rows
+    identical = np.ones(len(same_time), dtype=bool)
+    for values in data.values():
+        identical &= values[same_time] == values[same_time - 1]
+    if not identical.all():
+        i = same_time[~identical][0]
+        raise InputError(path, int(lines[i]), time_column,
+                         f"same time stamp as line {int(lines[i - 1])} but different values")
+    notices.append(InputNotice(path, lines[same_time].tolist(), None,
+                               f"{len(same_time)} duplicate row(s) dropped (identical to the row before)"))
+    keep = np.ones(len(times), dtype=bool)
+    keep[same_time] = False
+    return _Rows(times[keep], lines[keep], {role: values[keep] for role, values in data.items()})
 
-    if counter is not None and len(counter) > 1:
-        step = np.diff(counter.astype(np.int64))
-        jumps = np.flatnonzero(step > 1)
-        if len(jumps):
-            notices.append(InputNotice(path, lines[jumps + 1].tolist(), spelled["counter"],
-                                       f"record counter skips {int((step[jumps] - 1).sum())} record(s): "
-                                       "rows missing from the log"))
 
+def _counter_notices(path: Path, counter: np.ndarray | None, lines: np.ndarray,
+                     spelled: dict[str, str]) -> list[InputNotice]:
+    """A notice when the record counter skips records (rows missing from the log)."""
+    if counter is None or len(counter) <= 1:
+        return []
+    step = np.diff(counter.astype(np.int64))
+    jumps = np.flatnonzero(step > 1)
+    if not len(jumps):
+        return []
+    return [InputNotice(path, lines[jumps + 1].tolist(), spelled["counter"],
+                        f"record counter skips {int((step[jumps] - 1).sum())} record(s): rows missing from the log")]
+
+
+def _check_coordinates(path: Path, data: dict[str, np.ndarray], lines: np.ndarray, spelled: dict[str, str]) -> None:
+    """Latitude within +-90 deg and longitude within +-180 deg, else an error naming the first line outside."""
     lat, lon = data["lat"], data["lon"]
     out_of_range = np.flatnonzero((np.abs(lat) > 90) | (np.abs(lon) > 180))
     if len(out_of_range):
@@ -210,14 +259,3 @@ def read_pos(
         column = spelled["lat"] if abs(lat[i]) > 90 else spelled["lon"]
         raise InputError(path, int(lines[i]), column, f"coordinate {lat[i] if abs(lat[i]) > 90 else lon[i]:.10g} "
                          "is outside the valid range (degrees expected)")
-    check_ranges(path, data, lines, spelled)
-    notices += repair_spikes(path, data, lines, spelled)
-    gnss = extract_gnss_epochs(path, times, data["lat"], data["lon"], data["alt"], lines, rate_hz=gnss_rate_hz,
-                               ground_speed=data.get("gnss_speed"))
-    gnss_columns = f"{spelled['lat']}/{spelled['lon']}/{spelled['alt']}"
-    gnss, jump_notices = check_gnss_jumps(path, gnss, gnss_columns)
-    check_gnss_time_consistency(path, times, lines, gnss, time_column, 1.0 / gnss_rate_hz if gnss_rate_hz else None)
-    notices.extend(gnss.notices)
-    notices.extend(jump_notices)
-    return PosLog(path=path, time=times, data=data, lines=lines, gnss=gnss, time_repairs=repairs,
-                  notices=notices, column_names={role: spelled[role] for role in data}, dialect=table.dialect)

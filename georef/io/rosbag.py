@@ -430,6 +430,21 @@ def _read_gnss(reader: Any, topic: str) -> _GnssRows:
 def _gnss_epochs(where: _Where, rows: _GnssRows) -> tuple[GnssEpochs, list[InputNotice]]:
     """The usable fixes with NED sigmas; skipped fixes and covariances not used are notices."""
     notices: list[InputNotice] = []
+    k = _usable_fixes(where, rows, notices)
+    time, numbers = rows.time[k], rows.numbers[k]
+    if len(time):
+        _check_stamps(where, time, numbers, strict=False)
+    covariance = _fix_covariances(where, rows.cov_type[k], rows.cov_enu[k].copy(), numbers, notices)
+    fixes = GnssEpochs(time=time, lat_deg=rows.lat_deg[k], lon_deg=rows.lon_deg[k], height=rows.height[k],
+                       line=numbers, repeated=np.zeros(len(k), bool), sigma_neu=covariance.sigma_neu)
+    if covariance.sigma_neu is not None:  # the full covariance; NaN rows where the message gave none
+        fixes.cov_ned = covariance.cov_ned
+    return fixes, notices
+
+
+def _usable_fixes(where: _Where, rows: _GnssRows, notices: list[InputNotice]) -> np.ndarray:
+    """The messages (indices) with a fix and a full position, the others reported in notices added to ``notices``;
+    an unknown covariance type, no usable fix at all or a position outside the valid range is an error."""
     unknown_type = np.flatnonzero((rows.cov_type < COVARIANCE_TYPE_UNKNOWN) | (rows.cov_type > COVARIANCE_TYPE_KNOWN))
     if len(unknown_type):
         i = int(unknown_type[0])
@@ -455,11 +470,22 @@ def _gnss_epochs(where: _Where, rows: _GnssRows) -> tuple[GnssEpochs, list[Input
         i = int(bad[0])
         raise where.error(int(rows.numbers[i]), "latitude/longitude", f"{rows.lat_deg[i]:g}, {rows.lon_deg[i]:g} deg "
                           "is outside the valid range")
-    time, numbers = rows.time[k], rows.numbers[k]
-    if len(time):
-        _check_stamps(where, time, numbers, strict=False)
-    cov_type = rows.cov_type[k]
-    cov_enu = rows.cov_enu[k].copy()
+    return k
+
+
+@dataclass(frozen=True)
+class _FixCovariance:
+    """The fixes' NED sigmas (K, 3) [m] (None: no fix carries a covariance) and NED covariances (K, 3, 3) [m^2];
+    NaN rows where a fix takes the configured ``gnss_sigma``."""
+
+    sigma_neu: np.ndarray | None
+    cov_ned: np.ndarray
+
+
+def _fix_covariances(where: _Where, cov_type: np.ndarray, cov_enu: np.ndarray, numbers: np.ndarray,
+                     notices: list[InputNotice]) -> _FixCovariance:
+    """The usable fixes' covariances (ENU [m^2] as the messages give them, of type ``cov_type``) in NED; fixes
+    without a usable one, or with an approximated one, reported in notices added to ``notices``."""
     diagonal = cov_type == COVARIANCE_TYPE_DIAGONAL_KNOWN
     cov_enu[diagonal] *= np.eye(3)  # type 2: only the variances are known; what stands off the diagonal is not
     cov_enu = 0.5 * (cov_enu + np.swapaxes(cov_enu, -1, -2))
@@ -471,28 +497,23 @@ def _gnss_epochs(where: _Where, rows: _GnssRows) -> tuple[GnssEpochs, list[Input
                                     f"{int(unusable.sum())} covariance(s) with a variance not above 0 or not a "
                                     "number: those fixes take the configured gnss_sigma"))
     used = given & ~unusable
-    cov_ned = np.full((len(k), 3, 3), np.nan)
+    cov_ned = np.full((len(cov_type), 3, 3), np.nan)
     cov_ned[used] = enu_to_ned_covariance(cov_enu[used])
     approximated = used & (cov_type == COVARIANCE_TYPE_APPROXIMATED)
     if approximated.any():
         notices.append(where.notice([], "position_covariance_type", f"{int(approximated.sum())} fix(es) with an "
                                     "approximated covariance (type 1, e.g. from the DOP) used as given"))
     if not used.any():
-        sigma = None
-        if len(k):
+        if len(cov_type):
             notices.append(where.notice([], "position_covariance_type", "no fix carries a covariance: every fix "
                                         "takes the configured gnss_sigma"))
-    else:
-        sigma = np.sqrt(np.diagonal(cov_ned, axis1=-2, axis2=-1))  # NaN rows: the configured gnss_sigma
-        if (~used).any():
-            notices.append(where.notice(numbers[~used].tolist(), "position_covariance_type",
-                                        f"{int((~used).sum())} fix(es) without a covariance take the configured "
-                                        "gnss_sigma"))
-    fixes = GnssEpochs(time=time, lat_deg=rows.lat_deg[k], lon_deg=rows.lon_deg[k], height=rows.height[k],
-                       line=numbers, repeated=np.zeros(len(k), bool), sigma_neu=sigma)
-    if sigma is not None:  # the full covariance; NaN rows where the message gave none (the configured gnss_sigma)
-        fixes.cov_ned = cov_ned
-    return fixes, notices
+        return _FixCovariance(sigma_neu=None, cov_ned=cov_ned)
+    if (~used).any():
+        notices.append(where.notice(numbers[~used].tolist(), "position_covariance_type",
+                                    f"{int((~used).sum())} fix(es) without a covariance take the configured "
+                                    "gnss_sigma"))
+    # NaN rows: the configured gnss_sigma
+    return _FixCovariance(sigma_neu=np.sqrt(np.diagonal(cov_ned, axis1=-2, axis2=-1)), cov_ned=cov_ned)
 
 
 def _clock_notices(where_imu: _Where, where_gnss: _Where, imu: _ImuRows, gnss: _GnssRows,

@@ -25,7 +25,7 @@ The rules (``docs/formats.md``, "Reading text tables"):
 * **Pipes** (FIFOs) are read into memory once; a writer has :data:`PIPE_WAIT_S` to send its first byte (or to
   close the pipe), after which the pipe is an error rather than a wait for ever.
 
-Three readers, which must give the same numbers to the bit (``tests/test_table_paths.py``):
+Three readers, which must give the same numbers to the bit (``tests/io/test_table.py``):
 
 * a **clean** file (every line with the header's number of fields, printable ASCII, no quote, every number
   finite and within the exact fast path of at most 15 significant digits) is read by the compiled reader
@@ -36,8 +36,9 @@ Three readers, which must give the same numbers to the bit (``tests/test_table_p
   when pandas refuses a cell, a second, chunked pass finds its line and column.
 
 All three round correctly (Clinger's fast path; numpy through ``PyOS_string_to_double``; pandas 3 through
-fast_float). The first two exist for speed: importing pandas costs 0.35-0.4 s, and ``georef process`` needs
-it for nothing else (``docs/formats.md``, "Three readers"; ``docs/method-ins.md``, section 10).
+fast_float). The first two exist for speed: importing pandas is slow, and ``georef process`` needs it for
+nothing else (``docs/formats.md``, "Reading text tables"; ``docs/method-ins.md``, section 10;
+``docs/performance.md``, "Tables").
 """
 
 from __future__ import annotations
@@ -170,7 +171,7 @@ def parse_hex(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Hex-string parsing: the integers (uint64) and a mask of cells that are not hex.
 
     Accepted: 1 to 16 ASCII hex digits, a ``0x`` prefix, surrounding blanks. The common case (bare digits) is
-    vectorised (about 0.1 s per million cells); anything else goes cell by cell.
+    vectorised (``docs/performance.md``, "Tables"); anything else goes cell by cell.
     """
     values = np.asarray(values, dtype=object)
     if len(values) == 0:
@@ -817,29 +818,70 @@ def _layout(source: Source, wanted: dict[str, Kind], required: list[str],
 
 def _read_layout(path: Path, handle: BinaryIO, wanted: dict[str, Kind], required: list[str],
                  sep: str | None | Literal["auto"]) -> _Layout:
-    head = handle.read(_SNIFF)
-    encoding = "UTF-8"
-    start = 0
-    if head.startswith(_UTF8_BOM):
-        start, encoding = len(_UTF8_BOM), "UTF-8 (byte-order mark removed)"
-    elif head[:2] in _UTF16_BOMS:
-        handle = _utf16_to_utf8(path, handle)
-        head = handle.read(_SNIFF)
-        if head.startswith(_UTF8_BOM):
-            start = len(_UTF8_BOM)
-        encoding = "UTF-16 (converted to UTF-8)"
-    if b"\0" in head:
-        raise _nul_error(path, head, head.index(b"\0"))
-    end = head.find(b"\n", start)
+    """:func:`_layout` on an open ``handle``: the head decoded, the header line read, the separator found (or
+    ``sep``), the wanted columns located and the required ones checked."""
+    head = _Head.read(path, handle)
+    handle = head.handle
+    end = head.data.find(b"\n", head.start)
     if end < 0:
-        if b"\r" in head:
+        if b"\r" in head.data:
             raise InputError(path, 1, None, "lines end in a lone carriage return (CR, classic Mac OS); save the file "
                              "with LF or CR LF line ends")
-        if len(head) == _SNIFF:
+        if len(head.data) == _SNIFF:
             raise InputError(path, 1, None, f"no line end in the first {_SNIFF // 1024} KiB: not a table with a "
                              "header line")
         raise InputError(path, 2, None, "no data rows after the header")
-    header_bytes = head[start:end]
+    header_text = _header_text(path, head.data[head.start:end])
+    data_start = end + 1
+    samples = _sample_lines(head.data, data_start, whole=len(head.data) < _SNIFF)
+    if not samples and not _has_data(handle, data_start):
+        raise InputError(path, 2, None, "no data rows after the header")
+    chosen = _detect_separator(path, header_text, samples) if sep == "auto" else sep
+    header = [name.strip().strip("\ufeff").strip() for name in _split(header_text, chosen)]
+    index = _column_index(path, header, wanted)
+    missing = [name for name in required if name not in index]
+    if missing:
+        found = ", ".join(name for name in header if name)
+        if len(found) > 300:
+            found = found[:300] + f"… ({len(header)} columns)"
+        raise InputError(path, 1, missing[0], f"required column {missing[0]!r} is missing (columns found, "
+                         f"{SEPARATOR_NAMES[chosen]}-separated: {found})")
+    dialect = Dialect(chosen, head.encoding)
+    return _Layout(path, handle, header, dialect, data_start, index)
+
+
+@dataclass(frozen=True)
+class _Head:
+    """The first :data:`_SNIFF` bytes of a table (``data``, UTF-8), the ``handle`` to read on (UTF-16 converted),
+    where the header starts (``start``: after a byte-order mark) and the encoding as told to the user."""
+
+    handle: BinaryIO
+    data: bytes
+    start: int
+    encoding: str
+
+    @staticmethod
+    def read(path: Path, handle: BinaryIO) -> _Head:
+        """The head of ``handle``: a UTF-8 byte-order mark passed over, UTF-16 converted; a NUL byte is an error."""
+        head = handle.read(_SNIFF)
+        encoding = "UTF-8"
+        start = 0
+        if head.startswith(_UTF8_BOM):
+            start, encoding = len(_UTF8_BOM), "UTF-8 (byte-order mark removed)"
+        elif head[:2] in _UTF16_BOMS:
+            handle = _utf16_to_utf8(path, handle)
+            head = handle.read(_SNIFF)
+            if head.startswith(_UTF8_BOM):
+                start = len(_UTF8_BOM)
+            encoding = "UTF-16 (converted to UTF-8)"
+        if b"\0" in head:
+            raise _nul_error(path, head, head.index(b"\0"))
+        return _Head(handle=handle, data=head, start=start, encoding=encoding)
+
+
+def _header_text(path: Path, header_bytes: bytes) -> str:
+    """The header line (without its line end) as text; a carriage return inside it, a byte that is not UTF-8 or a
+    blank header is an error."""
     if header_bytes.endswith(b"\r"):
         header_bytes = header_bytes[:-1]
     if b"\r" in header_bytes:
@@ -852,13 +894,12 @@ def _read_layout(path: Path, handle: BinaryIO, wanted: dict[str, Kind], required
                          "save the file as UTF-8") from None
     if not header_text.strip():
         raise InputError(path, 1, None, "the header line is blank")
+    return header_text
 
-    data_start = end + 1
-    samples = _sample_lines(head, data_start, whole=len(head) < _SNIFF)
-    if not samples and not _has_data(handle, data_start):
-        raise InputError(path, 2, None, "no data rows after the header")
-    chosen = _detect_separator(path, header_text, samples) if sep == "auto" else sep
-    header = [name.strip().strip("\ufeff").strip() for name in _split(header_text, chosen)]
+
+def _column_index(path: Path, header: list[str], wanted: dict[str, Kind]) -> dict[str, int]:
+    """The field of each wanted name found in ``header`` (names matched ignoring case); two fields matching one
+    name are an error."""
     folded: dict[str, list[int]] = {}
     for i, name in enumerate(header):
         folded.setdefault(name.casefold(), []).append(i)
@@ -871,15 +912,7 @@ def _read_layout(path: Path, handle: BinaryIO, wanted: dict[str, Kind], required
                              "ignoring case, so rename or remove one")
         if hits:
             index[name] = hits[0]
-    missing = [name for name in required if name not in index]
-    if missing:
-        found = ", ".join(name for name in header if name)
-        if len(found) > 300:
-            found = found[:300] + f"… ({len(header)} columns)"
-        raise InputError(path, 1, missing[0], f"required column {missing[0]!r} is missing (columns found, "
-                         f"{SEPARATOR_NAMES[chosen]}-separated: {found})")
-    dialect = Dialect(chosen, encoding)
-    return _Layout(path, handle, header, dialect, data_start, index)
+    return index
 
 
 def _sample_lines(head: bytes, start: int, whole: bool, count: int = 5) -> list[tuple[int, str]]:
@@ -988,8 +1021,8 @@ _CLEAN_BYTES = bytes(range(32, 127)).replace(b'"', b"") + b"\t\n\r"
 _HEX_WIDTH, _STR_WIDTH = 24, 64
 
 
-#: numpy's ``loadtxt`` reads about 0.05 s per MB, pandas 0.02 s per MB after its 0.35-0.4 s import (the hour at
-#: 200 Hz, 153 MB: 7.2-7.9 s against 3.0-3.3 s, and a 560 MB peak against 380): larger files go to pandas
+#: numpy's ``loadtxt`` is slower per MB than pandas, whose import costs a fixed time, and its peak memory is higher:
+#: larger files go to pandas (docs/performance.md, "Tables")
 _LOADTXT_MAX_BYTES = 16 << 20
 #: bytes handed to the compiled reader at a time (whole lines)
 _KERNEL_BLOCK = 1 << 23
@@ -1113,22 +1146,54 @@ def _is_missing(values: np.ndarray) -> np.ndarray:
 
 
 def _read_body(layout: _Layout, wanted: dict[str, Kind], short_rows: str) -> Table:
-    path, header, index = layout.path, layout.header, layout.index
-    sep = layout.dialect.separator
+    """The data rows of ``layout``'s file: the wanted columns checked and converted, blank and cut-short lines
+    handled (:func:`_kept_rows`)."""
+    header, index = layout.header, layout.index
     present = [name for name in wanted if name in index]
     usecols = sorted(index[name] for name in present)
     clean = _parse_clean(layout, {index[name]: wanted[name] for name in present})
-    blank_lines: list[int] = []
-    short_lines: list[tuple[int, int, int]] = []
     if clean is not None:
         frame, n_rows = clean  # no blank or short line, by definition
+        kept = _kept_rows(layout, n_rows, [], [], short_rows)
     else:
         frame, scanner = _parse_with_pandas(layout, wanted, present, usecols)
         n_rows = len(frame)
         if n_rows != scanner.n_lines:
-            raise RuntimeError(f"{path}: pandas read {n_rows} rows, the line scan found {scanner.n_lines}")
-        blank_lines, short_lines = scanner.blank, scanner.short
+            raise RuntimeError(f"{layout.path}: pandas read {n_rows} rows, the line scan found {scanner.n_lines}")
+        kept = _kept_rows(layout, n_rows, scanner.blank, scanner.short, short_rows)
+    columns: dict[str, np.ndarray] = {}
+    rows = kept.rows
+    every_row = len(rows) == n_rows
+    for name in present:
+        values = np.asarray(frame[index[name]])
+        if not every_row:
+            values = values[rows]
+        columns[name] = _checked_column(layout, name, wanted[name], values, kept)
+    return Table(path=layout.path, header=header, columns=columns, lines=kept.lines[rows], notices=kept.notices,
+                 dialect=layout.dialect, names={name: header[index[name]] for name in present},
+                 incomplete=kept.incomplete[rows], fields=kept.n_fields[rows])
 
+
+@dataclass(frozen=True)
+class _KeptRows:
+    """Which parsed rows a table keeps: ``lines`` the file line of every parsed row (header = 1), ``rows`` the
+    kept ones (indices), ``incomplete`` and ``n_fields`` the cut-short rows kept (``short_rows="keep"``) with their
+    number of fields, ``notices`` about the lines skipped or dropped."""
+
+    lines: np.ndarray
+    rows: np.ndarray
+    incomplete: np.ndarray
+    n_fields: np.ndarray
+    notices: list[InputNotice]
+
+
+def _kept_rows(layout: _Layout, n_rows: int, blank_lines: list[int], short_lines: list[tuple[int, int, int]],
+               short_rows: str) -> _KeptRows:
+    """Blank lines dropped (a notice for those before the last data line); lines with fewer fields than the header
+    (``short_lines``: line, fields, byte offset) kept and marked (``short_rows="keep"``), dropped with a notice when
+    last, else an error."""
+    path, header = layout.path, layout.header
+    sep = layout.dialect.separator
     lines = np.arange(2, n_rows + 2)
     keep = np.ones(n_rows, dtype=bool)
     notices: list[InputNotice] = []
@@ -1165,67 +1230,71 @@ def _read_body(layout: _Layout, wanted: dict[str, Kind], short_rows: str) -> Tab
                              f"(from column {missing_column!r} on nothing is there)")
     if not keep.any():
         raise InputError(path, 2, None, "no complete data rows after the header")
+    return _KeptRows(lines=lines, rows=np.flatnonzero(keep), incomplete=incomplete, n_fields=n_fields,
+                     notices=notices)
 
-    columns: dict[str, np.ndarray] = {}
-    rows = np.flatnonzero(keep)
-    every_row = len(rows) == n_rows
-    complete = ~incomplete[rows]
-    any_incomplete = not complete.all()
-    for name in present:
-        kind = wanted[name]
-        spelled = header[index[name]]
-        values = np.asarray(frame[index[name]])
-        if not every_row:
-            values = values[rows]
-        # every column that is read is used: an empty cell is never silently a NaN (cut-short rows excepted)
-        if kind in ("float", "int"):
-            values = np.asarray(values, dtype=np.float64)
-            empty = np.isnan(values)
-        elif values.dtype == np.uint64:  # hex, converted by the compiled reader
-            empty = np.zeros(len(values), dtype=bool)
-        else:
-            empty = _is_missing(values) | (values == "")
-        if any_incomplete:
-            empty &= complete
-        if np.any(empty):
-            row = int(np.argmax(empty))
-            raise InputError(path, int(lines[rows[row]]), spelled, "empty cell")
-        if kind == "hex" and values.dtype == np.uint64:
-            columns[name] = values
-        elif kind == "hex":
-            parsed, bad = parse_hex(np.where(_is_missing(values), "0", values))
-            if bad.any():
-                row = int(np.argmax(bad))
-                raise InputError(path, int(lines[rows[row]]), spelled, _cell_problem(str(values[row]), kind, sep))
-            columns[name] = parsed
-        elif kind in ("float", "int"):
-            infinite = np.isinf(values)
-            if infinite.any():
-                row = int(np.argmax(infinite))
-                line = int(lines[rows[row]])
-                offset = _line_offset(layout.handle, layout.data_start, 2, line)
-                text, whole = _line_at(layout.handle, offset, 1 << 20) if offset is not None else ("", True)
-                fields = _split(text, sep)
-                cell = fields[index[name]] if index[name] < len(fields) else str(values[row])
-                if not whole and index[name] >= len(fields) - 1:
-                    cell += "…"  # cut at 1 MiB: the excerpt says "more than"
-                raise InputError(path, line, spelled, _cell_problem(cell, kind, sep))
-            if kind == "int":
-                with np.errstate(invalid="ignore"):
-                    fractional = np.isfinite(values) & (values % 1 != 0)
-                if fractional.any():
-                    row = int(np.argmax(fractional))
-                    raise InputError(path, int(lines[rows[row]]), spelled, f"{values[row]!r} is not a whole number")
-            columns[name] = values
-        else:
-            cells = np.where(_is_missing(values), "", values).tolist()
-            bad = [row for row, cell in enumerate(cells) if _BAD_TEXT.search(cell)]
-            if bad:
-                raise InputError(path, int(lines[rows[bad[0]]]), spelled, _str_problem(str(values[bad[0]])))
-            columns[name] = np.asarray(cells, dtype=str)
-    return Table(path=path, header=header, columns=columns, lines=lines[rows], notices=notices,
-                 dialect=layout.dialect, names={name: header[index[name]] for name in present},
-                 incomplete=incomplete[rows], fields=n_fields[rows])
+
+def _checked_column(layout: _Layout, name: str, kind: Kind, values: np.ndarray, kept: _KeptRows) -> np.ndarray:
+    """Column ``name``'s ``values`` at the kept rows, checked (no empty cell but in cut-short rows, every cell of
+    its kind) and converted: float64 numbers, uint64 hex, text."""
+    path, sep = layout.path, layout.dialect.separator
+    spelled = layout.header[layout.index[name]]
+    rows, lines = kept.rows, kept.lines
+    complete = ~kept.incomplete[rows]
+    # every column that is read is used: an empty cell is never silently a NaN (cut-short rows excepted)
+    if kind in ("float", "int"):
+        values = np.asarray(values, dtype=np.float64)
+        empty = np.isnan(values)
+    elif values.dtype == np.uint64:  # hex, converted by the compiled reader
+        empty = np.zeros(len(values), dtype=bool)
+    else:
+        empty = _is_missing(values) | (values == "")
+    if not complete.all():
+        empty &= complete
+    if np.any(empty):
+        row = int(np.argmax(empty))
+        raise InputError(path, int(lines[rows[row]]), spelled, "empty cell")
+    if kind == "hex" and values.dtype == np.uint64:
+        return values
+    if kind == "hex":
+        parsed, bad = parse_hex(np.where(_is_missing(values), "0", values))
+        if bad.any():
+            row = int(np.argmax(bad))
+            raise InputError(path, int(lines[rows[row]]), spelled, _cell_problem(str(values[row]), kind, sep))
+        return parsed
+    if kind in ("float", "int"):
+        _check_numbers(layout, name, kind, values, kept)
+        return values
+    cells = np.where(_is_missing(values), "", values).tolist()
+    bad = [row for row, cell in enumerate(cells) if _BAD_TEXT.search(cell)]
+    if bad:
+        raise InputError(path, int(lines[rows[bad[0]]]), spelled, _str_problem(str(values[bad[0]])))
+    return np.asarray(cells, dtype=str)
+
+
+def _check_numbers(layout: _Layout, name: str, kind: Kind, values: np.ndarray, kept: _KeptRows) -> None:
+    """An infinite number (quoted from its line in the file) or, in a whole-number column, a fraction is an
+    error naming its line and column."""
+    path, sep, column = layout.path, layout.dialect.separator, layout.index[name]
+    spelled = layout.header[column]
+    rows, lines = kept.rows, kept.lines
+    infinite = np.isinf(values)
+    if infinite.any():
+        row = int(np.argmax(infinite))
+        line = int(lines[rows[row]])
+        offset = _line_offset(layout.handle, layout.data_start, 2, line)
+        text, whole = _line_at(layout.handle, offset, 1 << 20) if offset is not None else ("", True)
+        fields = _split(text, sep)
+        cell = fields[column] if column < len(fields) else str(values[row])
+        if not whole and column >= len(fields) - 1:
+            cell += "…"  # cut at 1 MiB: the excerpt says "more than"
+        raise InputError(path, line, spelled, _cell_problem(cell, kind, sep))
+    if kind == "int":
+        with np.errstate(invalid="ignore"):
+            fractional = np.isfinite(values) & (values % 1 != 0)
+        if fractional.any():
+            row = int(np.argmax(fractional))
+            raise InputError(path, int(lines[rows[row]]), spelled, f"{values[row]!r} is not a whole number")
 
 
 def _parse_with_pandas(layout: _Layout, wanted: dict[str, Kind], present: list[str],

@@ -12,11 +12,11 @@ so the digits form an integer ``w < 2^53`` exactly, and a decimal exponent ``e``
 is exact; then ``w * 10^e`` or ``w / 10^-e`` is one correctly rounded operation. Any other number (16 or more
 significant digits, a larger exponent, ``nan``, ``inf``) stops the block: the file goes to a reader that rounds
 correctly everywhere. pandas 3 (fast_float) and numpy (Python's ``PyOS_string_to_double``) round correctly, so
-the three readers give the same bits (``tests/test_table_paths.py``). Hex cells of 1 to 13 digits (below 2^52,
+the three readers give the same bits (``tests/io/test_table.py``). Hex cells of 1 to 13 digits (below 2^52,
 exact in a float64) are converted; text cells are returned as byte ranges.
 
-Measured on the 15-minute 50 Hz POS.txt (43,500 lines of 28 fields, one core): numpy's ``loadtxt`` took 0.26 s for
-the 25 wanted columns, pandas' C parser 0.19 s plus 0.35-0.4 s of importing pandas; this kernel 0.03 s.
+It exists for speed: it reads a clean table several times faster than numpy's ``loadtxt`` or pandas' C parser
+(which also needs pandas imported); the figures are in ``docs/performance.md``, "Tables".
 """
 
 from __future__ import annotations
@@ -119,6 +119,85 @@ def _hex(buf: np.ndarray, i: int, n: int) -> tuple[float, int, bool]:
 
 
 @njit(cache=True)
+def _text_field(buf: np.ndarray, i: int, n: int, sep: int, wanted: bool) -> tuple[int, int]:
+    """Pass over a text field, or a field that is not wanted, from ``buf[i]``: the index after it, and CLEAN or
+    BAD_TEXT (a ``wanted`` cell that is empty or holds a blank, which pandas would strip)."""
+    a = i
+    while i < n:
+        c = buf[i]
+        if c == _LF or c == _CR or c == sep or (sep < 0 and (c == _SPACE or c == _TAB)):
+            break
+        if wanted and (c == _SPACE or c == _TAB):  # pandas would strip a text cell's blanks
+            return i, BAD_TEXT
+        i += 1
+    if wanted and i == a:
+        return i, BAD_TEXT
+    return i, CLEAN
+
+
+@njit(cache=True)
+def _parse_fields(buf: np.ndarray, i: int, n: int, sep: int, n_fields: int, slot: np.ndarray, kind: np.ndarray,
+                  values: np.ndarray, starts: np.ndarray, ends: np.ndarray, row: int) -> tuple[int, int, int]:
+    """The fields of the line from ``buf[i]``, the wanted ones into row ``row`` of ``values`` (numbers) or
+    ``starts``/``ends`` (text): the index of the line's end (LF, CR or ``n``), the fields read, and CLEAN or the
+    code of what stopped the line."""
+    field = 0
+    while True:
+        if sep < 0:  # runs of blanks separate; none at the start or the end of a line counts
+            while i < n and (buf[i] == _SPACE or buf[i] == _TAB):
+                i += 1
+            if i >= n or buf[i] == _LF or buf[i] == _CR:
+                return i, field, CLEAN
+        if field >= n_fields:
+            return i, field, FIELD_COUNT
+        out = slot[field]
+        field_start = i
+        if out >= 0 and kind[out] != TEXT:
+            value, i, ok = _number(buf, i, n) if kind[out] == FLOAT else _hex(buf, i, n)
+            if not ok:
+                return i, field, BAD_NUMBER if kind[out] == FLOAT else BAD_HEX
+            values[row, out] = value
+        else:
+            i, code = _text_field(buf, i, n, sep, out >= 0)
+            if code != CLEAN:
+                return i, field, code
+            if out >= 0:
+                starts[row, out] = field_start
+                ends[row, out] = i
+        if i - field_start > MAX_FIELD_CHARS:  # the other readers name it; none holds such a line
+            return i, field, FIELD_TOO_LONG
+        field += 1
+        if i >= n:
+            return i, field, CLEAN
+        c = buf[i]
+        if c == _LF or c == _CR:
+            return i, field, CLEAN
+        if sep >= 0 and c == sep:
+            i += 1
+        elif not (sep < 0 and (c == _SPACE or c == _TAB)):
+            # a number ran into a letter
+            return i, field, BAD_NUMBER if out >= 0 and kind[out] == FLOAT else BAD_HEX
+
+
+@njit(cache=True)
+def _line_end(buf: np.ndarray, i: int, n: int, sep: int, n_fields: int, line_start: int,
+              field: int) -> tuple[int, int]:
+    """After a line's fields were read cleanly (``field`` of them; ``buf[i]`` its end): the index of its LF (a CR LF
+    passed over), and CLEAN, or LONE_CR, BLANK_LINE or FIELD_COUNT."""
+    if i < n and buf[i] == _CR:
+        if i + 1 < n and buf[i + 1] == _LF:
+            i += 1
+        elif i + 1 < n:
+            return i, LONE_CR
+    empty = line_start >= n or buf[line_start] == _LF or buf[line_start] == _CR
+    if field == 0 or (sep >= 0 and field == 1 and empty):
+        return i, BLANK_LINE
+    if field != n_fields:
+        return i, FIELD_COUNT
+    return i, CLEAN
+
+
+@njit(cache=True)
 def parse_block(buf: np.ndarray, n: int, sep: int, n_fields: int, slot: np.ndarray, kind: np.ndarray,
                 n_lines: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The wanted fields of the ``n_lines`` lines in ``buf[:n]`` (whole lines; the last may lack its LF).
@@ -140,68 +219,9 @@ def parse_block(buf: np.ndarray, n: int, sep: int, n_fields: int, slot: np.ndarr
     row = 0
     while i < n and row < n_lines:
         line_start = i
-        field = 0
-        code = CLEAN
-        while True:
-            if sep < 0:  # runs of blanks separate; none at the start or the end of a line counts
-                while i < n and (buf[i] == _SPACE or buf[i] == _TAB):
-                    i += 1
-                if i >= n or buf[i] == _LF or buf[i] == _CR:
-                    break
-            if field >= n_fields:
-                code = FIELD_COUNT
-                break
-            out = slot[field]
-            field_start = i
-            if out >= 0 and kind[out] != TEXT:
-                value, i, ok = _number(buf, i, n) if kind[out] == FLOAT else _hex(buf, i, n)
-                if not ok:
-                    code = BAD_NUMBER if kind[out] == FLOAT else BAD_HEX
-                    break
-                values[row, out] = value
-            else:
-                a = i
-                while i < n:
-                    c = buf[i]
-                    if c == _LF or c == _CR or c == sep or (sep < 0 and (c == _SPACE or c == _TAB)):
-                        break
-                    if out >= 0 and (c == _SPACE or c == _TAB):  # pandas would strip a text cell's blanks
-                        code = BAD_TEXT
-                        break
-                    i += 1
-                if code != CLEAN:
-                    break
-                if out >= 0:
-                    if i == a:
-                        code = BAD_TEXT
-                        break
-                    starts[row, out] = a
-                    ends[row, out] = i
-            if i - field_start > MAX_FIELD_CHARS:  # the other readers name it; none holds such a line
-                code = FIELD_TOO_LONG
-                break
-            field += 1
-            if i >= n:
-                break
-            c = buf[i]
-            if c == _LF or c == _CR:
-                break
-            if sep >= 0 and c == sep:
-                i += 1
-            elif not (sep < 0 and (c == _SPACE or c == _TAB)):
-                code = BAD_NUMBER if out >= 0 and kind[out] == FLOAT else BAD_HEX  # a number ran into a letter
-                break
-        if code == CLEAN and i < n and buf[i] == _CR:
-            if i + 1 < n and buf[i + 1] == _LF:
-                i += 1
-            elif i + 1 < n:
-                code = LONE_CR
+        i, field, code = _parse_fields(buf, i, n, sep, n_fields, slot, kind, values, starts, ends, row)
         if code == CLEAN:
-            empty = line_start >= n or buf[line_start] == _LF or buf[line_start] == _CR
-            if field == 0 or (sep >= 0 and field == 1 and empty):
-                code = BLANK_LINE
-            elif field != n_fields:
-                code = FIELD_COUNT
+            i, code = _line_end(buf, i, n, sep, n_fields, line_start, field)
         if code != CLEAN:
             status[0] = code
             status[1] = row

@@ -7,7 +7,7 @@ holds one ``NAME, v1, v2, ...`` line per message with the values scaled to their
 
 The format characters and their scales are ArduPilot's (``libraries/AP_Logger/LogStructure.h``): ``c``/``C``/
 ``e``/``E`` hold hundredths, ``L`` a latitude or longitude in 1e-7 degrees. The table is this writer's own and not
-the reader's (:data:`georef.io.logs.dataflash.FORMAT_TYPES`): ``tests/test_autopilot_logs.py`` checks both
+the reader's (:data:`georef.io.logs.dataflash.FORMAT_TYPES`): ``tests/sim/test_autopilot_logs.py`` checks both
 against pymavlink, which a shared table would not do for the reader.
 
 A :class:`MessageBlock` holds the messages of one type as stored (integers for the scaled characters) with each

@@ -354,38 +354,8 @@ def simulate(cfg: SimConfig) -> SimulatedFlight:
         temperature = add_thermal_bias(cfg.thermal, row_time - cfg.start_utc_s, gyro, accel, gyro_bias, accel_bias)
     unit = _unit_outputs(cfg, nav, accel - nav.f_ib_b, rng) if cfg.unit is not None else None
     fixes, held = _gnss(cfg, fine, fine_rate, row_time, rng)
-
-    whole_s = cfg.start_utc_s + rows // fine_rate
-    micro = (rows % fine_rate) * (1_000_000 // fine_rate)
-    trig = (whole_s % 86400) * 100
-    for quirk in cfg.trig_quirk_seconds:
-        block = whole_s == cfg.start_utc_s + quirk
-        if block.any() and quirk > 0:
-            trig[block] = ((cfg.start_utc_s + quirk - 1) % 86400) * 100 + 1
-
-    has_fix = held >= 0
-    imu_temp = 35.0 + 0.002 * (row_time - row_time[0]) if temperature is None else temperature
-    hold = np.where(has_fix, held, 0)
-    earth_b = np.einsum("nji,nj->ni", nav.C_b_n, earth_rate_n(nav.lat))
-    n = len(rows)
-    unit_columns = {"IACC_X": unit["IACC"][:, 0], "IACC_Y": unit["IACC"][:, 1], "IACC_Z": unit["IACC"][:, 2],
-                    "ROLL": unit["ROLL"], "PITCH": unit["PITCH"], "YAW": unit["YAW"]} if unit is not None else {}
-    pos = pd.DataFrame({
-        "CNT[HEX]": np.char.mod("%X", 0xA4 + np.arange(n)),
-        "ACCS_X": accel[:, 0], "ACCS_Y": accel[:, 1], "ACCS_Z": accel[:, 2],
-        **unit_columns,  # placed by the column selection below
-        "OMGS_X": np.degrees(gyro[:, 0]), "OMGS_Y": np.degrees(gyro[:, 1]), "OMGS_Z": np.degrees(gyro[:, 2]),
-        "IOMG_X": np.degrees(gyro[:, 0] - earth_b[:, 0]), "IOMG_Y": np.degrees(gyro[:, 1] - earth_b[:, 1]),
-        "IOMG_Z": np.degrees(gyro[:, 2] - earth_b[:, 2]),
-        "VELX": np.zeros(n), "ODO_TICKS": np.zeros(n, int), "MAGNMTR": np.zeros(n, int),
-        "TRIG_TIME": trig, "SAMPL_TIME": micro,
-        "IMU_TEMP": imu_temp, "SENS_TEMP": 33.0 + 0.002 * (row_time - row_time[0]),
-        "LONGITUDE": np.where(has_fix, fixes["lon"].to_numpy()[hold], 0.0),
-        "LATITUDE": np.where(has_fix, fixes["lat"].to_numpy()[hold], 0.0),
-        "ALTITUDE": np.where(has_fix, fixes["height"].to_numpy()[hold], 0.0),
-        "VELOCITY": np.where(has_fix, fixes["speed"].to_numpy()[hold], 0.0),
-        "STATUS[HEX]": np.where(has_fix, "49", "0"),
-    })[[name for name in POS_HEADER if unit is not None or name not in UNIT_COLUMNS]]
+    pos = _pos_table(cfg, nav, rows, fine_rate, _ImuRows(gyro=gyro, accel=accel, temperature=temperature), unit,
+                     fixes, held)
 
     t0 = fixes["time"].iloc[0] + 3.0 if len(fixes) else row_time[0] + 3.0
     nominal = np.arange(t0, row_time[-1] - 3.0, 1.0 / cfg.camera_rate_hz)
@@ -404,6 +374,55 @@ def simulate(cfg: SimConfig) -> SimulatedFlight:
     return SimulatedFlight(config=cfg, pos=pos, exposures=exposures, truth_frames=truth, truth_nav=nav,
                            gnss_fixes=fixes, gyro_bias=gyro_bias, accel_bias=accel_bias, mag=mag,
                            autopilot_rpy=autopilot, imu_temperature_degc=temperature)
+
+
+@dataclass(frozen=True)
+class _ImuRows:
+    """The simulated IMU on the POS rows: ``gyro`` [rad/s] and ``accel`` [m/s^2] (N, 3, body), and the IMU
+    temperature [degC] (N,) when a thermal model is simulated (None: a slow default ramp is logged)."""
+
+    gyro: np.ndarray
+    accel: np.ndarray
+    temperature: np.ndarray | None
+
+
+def _pos_table(cfg: SimConfig, nav: Trajectory, rows: np.ndarray, fine_rate: int, imu: _ImuRows,
+               unit: dict[str, np.ndarray] | None, fixes: pd.DataFrame, held: np.ndarray) -> pd.DataFrame:
+    """The POS.txt table of the simulated rows (fine-grid indices ``rows``): the IMU in the log's units, the
+    unit's outputs when simulated, TRIG_TIME/SAMPL_TIME with the configured logger quirks, and the fix each row
+    holds (``held``, -1: none)."""
+    gyro, accel, row_time = imu.gyro, imu.accel, nav.time
+    whole_s = cfg.start_utc_s + rows // fine_rate
+    micro = (rows % fine_rate) * (1_000_000 // fine_rate)
+    trig = (whole_s % 86400) * 100
+    for quirk in cfg.trig_quirk_seconds:
+        block = whole_s == cfg.start_utc_s + quirk
+        if block.any() and quirk > 0:
+            trig[block] = ((cfg.start_utc_s + quirk - 1) % 86400) * 100 + 1
+
+    has_fix = held >= 0
+    imu_temp = 35.0 + 0.002 * (row_time - row_time[0]) if imu.temperature is None else imu.temperature
+    hold = np.where(has_fix, held, 0)
+    earth_b = np.einsum("nji,nj->ni", nav.C_b_n, earth_rate_n(nav.lat))
+    n = len(rows)
+    unit_columns = {"IACC_X": unit["IACC"][:, 0], "IACC_Y": unit["IACC"][:, 1], "IACC_Z": unit["IACC"][:, 2],
+                    "ROLL": unit["ROLL"], "PITCH": unit["PITCH"], "YAW": unit["YAW"]} if unit is not None else {}
+    return pd.DataFrame({
+        "CNT[HEX]": np.char.mod("%X", 0xA4 + np.arange(n)),
+        "ACCS_X": accel[:, 0], "ACCS_Y": accel[:, 1], "ACCS_Z": accel[:, 2],
+        **unit_columns,  # placed by the column selection below
+        "OMGS_X": np.degrees(gyro[:, 0]), "OMGS_Y": np.degrees(gyro[:, 1]), "OMGS_Z": np.degrees(gyro[:, 2]),
+        "IOMG_X": np.degrees(gyro[:, 0] - earth_b[:, 0]), "IOMG_Y": np.degrees(gyro[:, 1] - earth_b[:, 1]),
+        "IOMG_Z": np.degrees(gyro[:, 2] - earth_b[:, 2]),
+        "VELX": np.zeros(n), "ODO_TICKS": np.zeros(n, int), "MAGNMTR": np.zeros(n, int),
+        "TRIG_TIME": trig, "SAMPL_TIME": micro,
+        "IMU_TEMP": imu_temp, "SENS_TEMP": 33.0 + 0.002 * (row_time - row_time[0]),
+        "LONGITUDE": np.where(has_fix, fixes["lon"].to_numpy()[hold], 0.0),
+        "LATITUDE": np.where(has_fix, fixes["lat"].to_numpy()[hold], 0.0),
+        "ALTITUDE": np.where(has_fix, fixes["height"].to_numpy()[hold], 0.0),
+        "VELOCITY": np.where(has_fix, fixes["speed"].to_numpy()[hold], 0.0),
+        "STATUS[HEX]": np.where(has_fix, "49", "0"),
+    })[[name for name in POS_HEADER if unit is not None or name not in UNIT_COLUMNS]]
 
 
 def vehicle_trajectory(plan: FlightPlan | MulticopterPlan | CarPlan | DronePlan, fine_rate_hz: float) -> Trajectory:

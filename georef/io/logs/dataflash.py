@@ -9,8 +9,8 @@ separated lines, already scaled. :func:`read_dataflash` returns, for each wanted
 located errors: the byte offset (binary) or line (text).
 
 The binary walk is compiled (:mod:`georef.io.logs.dataflash_kernel`); the bodies are read by numpy per type.
-pymavlink's DFReader reads the same logs and is the reference of ``tests/test_autopilot_logs.py``; it is not used
-here because it costs about 1 s per MB of log in Python.
+pymavlink's DFReader reads the same logs and is the reference of ``tests/sim/test_autopilot_logs.py``; it is not used
+here because it is slow, reading in Python (``docs/performance.md``, "Autopilot logs").
 """
 
 from __future__ import annotations

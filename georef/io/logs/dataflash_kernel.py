@@ -7,9 +7,8 @@ offset and type; bytes that do not start a known message are skipped one by one 
 counted with the offset where each skipped run began (a log cut by a power loss, a corrupt sector). FMT's own
 length is fixed (89 bytes): a FMT message that would change it is damaged, and the walk does not follow it.
 
-pymavlink's ``DFReader_binary`` walks the same way in Python at about 1 s per MB (measured on a 3 MB ArduCopter
-log: 1.1 s to index, 1.8 s to read five message types); this walk takes milliseconds, and the bodies are then
-read by numpy, a type at a time.
+pymavlink's ``DFReader_binary`` walks the same way in Python, orders of magnitude slower
+(``docs/performance.md``, "Autopilot logs"); the bodies are then read by numpy, a type at a time.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 #!/bin/sh
-# Regenerate the RTKLIB .pos fixtures of tests/test_rtklib.py with Debian's rnx2rtkp (package rtklib,
+# Regenerate the RTKLIB .pos fixtures of tests/io/test_rtklib.py with Debian's rnx2rtkp (package rtklib,
 # 2.4.3 b34). Run from anywhere: sh tests/data/rtklib/make_fixtures.sh [RTKLIB checkout]
 #
 # With an RTKLIB checkout (github.com/tomojitakasu/RTKLIB, commit 71db0ffa0d9735697c6adfd06fdf766d0e5ce807) the
