@@ -109,8 +109,8 @@ EM_ITERATIONS = 5
 EM_TOLERANCE = 0.05
 #: when the estimation's first smoothed pass diverges, its process noise is raised tenfold up to this many times
 INFLATE_TRIES = 4
-#: the environment variable that switches on the noise fit's fixed budget (:func:`fit_budget`), which changes
-#: numbers; off by default until its honesty figures are accepted (docs/method-ins.md, section 4)
+#: the environment variable that switches off the noise fit's fixed budget (:func:`fit_budget`) with ``0``, for
+#: paired comparisons against the unbounded fit (docs/method-ins.md, section 4)
 FIT_BUDGET_VARIABLE = "GEOREF_FIT_BUDGET"
 #: with the budget: once the noise fit has run this many passes (cross-validation passes count as one each) it
 #: starts no further EM step, white-noise candidate or GNSS model (it still scores the models it has fitted, and
@@ -1338,10 +1338,10 @@ def _calibration(run: _Pass) -> Calibration:
 
 
 def fit_budget() -> bool:
-    """Is the noise fit's fixed budget on (``GEOREF_FIT_BUDGET=1``)? With it the fit runs at most FIT_PASSES
-    passes over at most FIT_SPAN_S of the flight, chooses the GNSS model after GNSS_MODEL_EM_STEPS steps of the
+    """Is the noise fit's fixed budget on (the default; ``GEOREF_FIT_BUDGET=0`` turns it off)? With it the fit
+    runs at most FIT_PASSES passes over at most FIT_SPAN_S of the flight, chooses the GNSS model after GNSS_MODEL_EM_STEPS steps of the
     correlated one unless that comes close, and the held-out check runs at the fit's rates."""
-    return os.environ.get(FIT_BUDGET_VARIABLE, "").strip() == "1"
+    return os.environ.get(FIT_BUDGET_VARIABLE, "1").strip() != "0"
 
 
 def _head(inputs: InsInputs, last: int) -> InsInputs:

@@ -238,9 +238,9 @@ def test_a_rest_log_has_no_gaps():
 
 # ---- the noise fit's budget (GEOREF_FIT_BUDGET) ----------------------------------------------------------------
 def test_fit_budget_caps_the_noise_fit(tmp_path, monkeypatch):
-    """With GEOREF_FIT_BUDGET=1 the noise fit starts nothing new once FIT_PASSES passes are spent and runs on at
-    most FIT_SPAN_S of the flight, while the final pass and the held-out check cover all of it; without it (the
-    default) the same flight's fit is not capped."""
+    """With the budget (the default) the noise fit starts nothing new once FIT_PASSES passes are spent and runs on at
+    most FIT_SPAN_S of the flight, while the final pass and the held-out check cover all of it; without it
+    (GEOREF_FIT_BUDGET=0) the same flight's fit is not capped."""
     from georef.fusion import ins
 
     flight = simulate(SimConfig(seed=3))
@@ -254,7 +254,7 @@ def test_fit_budget_caps_the_noise_fit(tmp_path, monkeypatch):
         return run_pass(inputs, *args, **kwargs)
 
     monkeypatch.setattr(ins, "_run_pass", spied)
-    monkeypatch.delenv(ins.FIT_BUDGET_VARIABLE, raising=False)
+    monkeypatch.setenv(ins.FIT_BUDGET_VARIABLE, "0")
     free = process(paths["POS.txt"], paths["Kamera.txt"], cfg).nav.diagnostics
     duration = max(spans)
     monkeypatch.setenv(ins.FIT_BUDGET_VARIABLE, "1")
