@@ -1339,8 +1339,9 @@ def _calibration(run: _Pass) -> Calibration:
 
 def fit_budget() -> bool:
     """Is the noise fit's fixed budget on (the default; ``GEOREF_FIT_BUDGET=0`` turns it off)? With it the fit
-    runs at most FIT_PASSES passes over at most FIT_SPAN_S of the flight, chooses the GNSS model after GNSS_MODEL_EM_STEPS steps of the
-    correlated one unless that comes close, and the held-out check runs at the fit's rates."""
+    runs at most FIT_PASSES passes over at most FIT_SPAN_S of the flight, chooses the GNSS model after
+    GNSS_MODEL_EM_STEPS steps of the correlated one unless that comes close, and the held-out check runs at the
+    fit's rates."""
     return os.environ.get(FIT_BUDGET_VARIABLE, "1").strip() != "0"
 
 
