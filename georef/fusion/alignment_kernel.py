@@ -21,13 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from georef.frames.kernels import (
-    lever_arm_into,
-    skew_into,
-    so3_exp_into,
-    so3_right_jacobian_into,
-    trapezoid_increment,
-)
+from georef.frames.kernels import lever_arm_into, skew_into, so3_exp_into, so3_right_jacobian_into
 
 
 @njit(cache=True)
@@ -37,107 +31,12 @@ def _matmul3(A: np.ndarray, B: np.ndarray, out: np.ndarray) -> None:
             out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
 
 
+# One of the named exceptions to the 100-line rule (README, Development): this is the alignment's innermost loop,
+# run for every IMU row of every Gauss-Newton iteration of every start; split into compiled helpers (with the
+# trapezoid increment of frames.kernels) it took half as long again on a multi-start alignment
+# (docs/performance.md), so its row step stays written out.
 @njit(cache=True)
-def _rotation_step(gyro, k, bias_g, dt, dC, theta, E, Eh, C_mid):
-    """The rotation over a step of ``dt`` [s] from ``t[k-1]``: ``θ`` (3,) [rad], ``E = exp([θ x])``, and the rotation
-    at the step's middle ``C_mid = ΔC exp([θ/2 x])``, into the given arrays."""
-    trapezoid_increment(gyro[k - 1], gyro[k], bias_g, dt, theta)
-    so3_exp_into(theta, E)
-    for i in range(3):
-        theta[i] *= 0.5
-    so3_exp_into(theta, Eh)
-    for i in range(3):
-        theta[i] *= 2.0
-    _matmul3(dC, Eh, C_mid)
-
-
-@njit(cache=True)
-def _velocity_step(accel, k, bias_a, dt, C_mid, J, dv, inc, W, tmp, d_inc_g):
-    """The step's bias-corrected velocity change ``dv`` (body, 3,) [m/s], turned into b0 (``inc = C_mid dv``), and
-    its derivative with respect to the gyro bias ``d_inc_g = -C_mid [dv x] J`` (``W``, ``tmp``: work arrays)."""
-    trapezoid_increment(accel[k - 1], accel[k], bias_a, dt, dv)
-    for i in range(3):
-        inc[i] = C_mid[i, 0] * dv[0] + C_mid[i, 1] * dv[1] + C_mid[i, 2] * dv[2]
-    # d inc / d b_g = -C_mid [dv x] J
-    skew_into(dv, W)
-    _matmul3(W, J, tmp)
-    _matmul3(C_mid, tmp, d_inc_g)
-
-
-@njit(cache=True)
-def _jacobian_step(theta, E, J, dC, dt, Jr, nJ, nC):
-    """The rotation's bias Jacobian and the rotation after the step: ``nJ = Eᵀ J - J_r(θ) Δt``, ``nC = ΔC E``."""
-    so3_right_jacobian_into(theta, Jr)
-    # new J = Eᵀ J - J_r Δt
-    for i in range(3):
-        for j in range(3):
-            nJ[i, j] = E[0, i] * J[0, j] + E[1, i] * J[1, j] + E[2, i] * J[2, j] - Jr[i, j] * dt
-    _matmul3(dC, E, nC)
-
-
-@njit(cache=True)
-def _accumulate(run, D, J, dC, inc, C_mid, d_inc_g, nJ, nC, dt, tau_mid):
-    """A full IMU interval added to the running integrals ``run`` (α, β, first moment, γ) and their bias
-    derivatives ``D``; ``J`` and ``ΔC`` take the step's ``nJ`` and ``nC``."""
-    for i in range(3):
-        run[3 + i] += run[i] * dt + 0.5 * inc[i] * dt                 # beta
-        run[9 + i] += run[6 + i] * dt + 0.5 * tau_mid * inc[i] * dt  # gamma
-        run[6 + i] += tau_mid * inc[i]                               # A1
-        run[i] += inc[i]                                             # alpha
-        for j in range(3):
-            D[2, i, j] += D[0, i, j] * dt - 0.5 * d_inc_g[i, j] * dt
-            D[3, i, j] += D[1, i, j] * dt - 0.5 * C_mid[i, j] * dt * dt
-            D[0, i, j] -= d_inc_g[i, j]
-            D[1, i, j] -= C_mid[i, j] * dt
-            J[i, j] = nJ[i, j]
-            dC[i, j] = nC[i, j]
-
-
-@njit(cache=True)
-def _store_integrals(s, run, inc, dt, tau_mid, out_alpha, out_beta, out_gamma):
-    """Sample ``s``'s α, β, γ: the running integrals plus the partial step of ``dt`` [s]."""
-    for i in range(3):
-        out_beta[s, i] = run[3 + i] + run[i] * dt + 0.5 * inc[i] * dt
-        out_gamma[s, i] = run[9 + i] + run[6 + i] * dt + 0.5 * tau_mid * inc[i] * dt
-        out_alpha[s, i] = run[i] + inc[i]
-
-
-@njit(cache=True)
-def _store_jacobians(s, D, d_inc_g, C_mid, nJ, nC, dt, out_da_g, out_da_a, out_db_g, out_db_a, out_J, out_C):
-    """Sample ``s``'s bias derivatives of α and β, its rotation Jacobian and its ΔC after the partial step."""
-    for i in range(3):
-        for j in range(3):
-            out_db_g[s, i, j] = D[2, i, j] + D[0, i, j] * dt - 0.5 * d_inc_g[i, j] * dt
-            out_db_a[s, i, j] = D[3, i, j] + D[1, i, j] * dt - 0.5 * C_mid[i, j] * dt * dt
-            out_da_g[s, i, j] = D[0, i, j] - d_inc_g[i, j]
-            out_da_a[s, i, j] = D[1, i, j] - C_mid[i, j] * dt
-            out_J[s, i, j] = nJ[i, j]
-            out_C[s, i, j] = nC[i, j]
-
-
-@njit(cache=True)
-def _store_lever(s, nC, nJ, lever, W, tmp, out_lam, out_dl_g):
-    """Sample ``s``'s lever arm in b0, ``λ = ΔC l``, and its gyro-bias derivative ``-ΔC [l x] J``."""
-    lever_arm_into(nC, lever, out_lam[s])
-    # dλ/db_g = -ΔC [l x] J
-    skew_into(lever, W)
-    _matmul3(W, nJ, tmp)
-    _matmul3(nC, tmp, out_dl_g[s])
-    for i in range(3):
-        for j in range(3):
-            out_dl_g[s, i, j] = -out_dl_g[s, i, j]
-
-
-@njit(cache=True)
-def _outputs(K):
-    """Zeroed outputs of :func:`preintegrate` for ``K`` samples, in its return order."""
-    return (np.zeros((K, 3, 3)), np.zeros((K, 3)), np.zeros((K, 3)), np.zeros((K, 3)), np.zeros((K, 3)),
-            np.zeros((K, 3, 3)), np.zeros((K, 3, 3)), np.zeros((K, 3, 3)), np.zeros((K, 3, 3)), np.zeros((K, 3, 3)),
-            np.zeros((K, 3, 3)))
-
-
-@njit(cache=True)
-def preintegrate(t, gyro, accel, row0, bias_g, bias_a, lever, sample_t):
+def preintegrate(t, gyro, accel, row0, bias_g, bias_a, lever, sample_t):  # noqa: C901, PLR0915
     """Body-frame integrals from ``row0`` at the increasing ``sample_t`` [s] (all >= t[row0], <= t[-1]).
 
     Inputs: row times (N,) s, gyro [rad/s] and specific force [m/s^2] (N, 3) in the body frame, the biases
@@ -147,17 +46,34 @@ def preintegrate(t, gyro, accel, row0, bias_g, bias_a, lever, sample_t):
     """
     n = t.shape[0]
     K = sample_t.shape[0]
-    out_C, out_alpha, out_beta, out_gamma, out_lam, out_J, out_da_g, out_da_a, out_db_g, out_db_a, out_dl_g = \
-        _outputs(K)
+    out_C = np.zeros((K, 3, 3))
+    out_alpha = np.zeros((K, 3))
+    out_beta = np.zeros((K, 3))
+    out_gamma = np.zeros((K, 3))
+    out_lam = np.zeros((K, 3))
+    out_J = np.zeros((K, 3, 3))
+    out_da_g = np.zeros((K, 3, 3))
+    out_da_a = np.zeros((K, 3, 3))
+    out_db_g = np.zeros((K, 3, 3))
+    out_db_a = np.zeros((K, 3, 3))
+    out_dl_g = np.zeros((K, 3, 3))
     # running values
     run = np.zeros(4 * 3)          # alpha, beta, A1 (first moment), gamma
     dC = np.eye(3)
     J = np.zeros((3, 3))
     D = np.zeros((4, 3, 3))        # dα/db_g, dα/db_a, dβ/db_g, dβ/db_a
     # work arrays
-    E, Eh, C_mid, Jr, W, nJ, nC, d_inc_g = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), \
-        np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
-    theta, dv, inc = np.empty(3), np.empty(3), np.empty(3)
+    E = np.empty((3, 3))
+    Eh = np.empty((3, 3))
+    C_mid = np.empty((3, 3))
+    Jr = np.empty((3, 3))
+    W = np.empty((3, 3))
+    nJ = np.empty((3, 3))
+    nC = np.empty((3, 3))
+    theta = np.empty(3)
+    dv = np.empty(3)
+    inc = np.empty(3)
+    d_inc_g = np.empty((3, 3))
     t0 = t[row0]
     s = 0
     while s < K and sample_t[s] <= t0:
@@ -174,15 +90,61 @@ def preintegrate(t, gyro, accel, row0, bias_g, bias_a, lever, sample_t):
             full = not (s < K and sample_t[s] <= t[k])
             w = 1.0 if full else (sample_t[s] - t[k - 1]) / dt_full
             dt = w * dt_full
-            _rotation_step(gyro, k, bias_g, dt, dC, theta, E, Eh, C_mid)
-            _velocity_step(accel, k, bias_a, dt, C_mid, J, dv, inc, W, nC, d_inc_g)
+            for i in range(3):
+                theta[i] = (0.5 * (gyro[k - 1, i] + gyro[k, i]) - bias_g[i]) * dt
+                dv[i] = (0.5 * (accel[k - 1, i] + accel[k, i]) - bias_a[i]) * dt
+            so3_exp_into(theta, E)
+            for i in range(3):
+                theta[i] *= 0.5
+            so3_exp_into(theta, Eh)
+            for i in range(3):
+                theta[i] *= 2.0
+            _matmul3(dC, Eh, C_mid)
+            for i in range(3):
+                inc[i] = C_mid[i, 0] * dv[0] + C_mid[i, 1] * dv[1] + C_mid[i, 2] * dv[2]
+            # d inc / d b_g = -C_mid [dv x] J
+            skew_into(dv, W)
+            _matmul3(W, J, nC)
+            _matmul3(C_mid, nC, d_inc_g)
             tau_mid = tau0 + 0.5 * dt
-            _jacobian_step(theta, E, J, dC, dt, Jr, nJ, nC)
+            so3_right_jacobian_into(theta, Jr)
+            # new J = Eᵀ J - J_r Δt
+            for i in range(3):
+                for j in range(3):
+                    nJ[i, j] = E[0, i] * J[0, j] + E[1, i] * J[1, j] + E[2, i] * J[2, j] - Jr[i, j] * dt
+            _matmul3(dC, E, nC)
             if full:
-                _accumulate(run, D, J, dC, inc, C_mid, d_inc_g, nJ, nC, dt, tau_mid)
+                for i in range(3):
+                    run[3 + i] += run[i] * dt + 0.5 * inc[i] * dt                 # beta
+                    run[9 + i] += run[6 + i] * dt + 0.5 * tau_mid * inc[i] * dt  # gamma
+                    run[6 + i] += tau_mid * inc[i]                               # A1
+                    run[i] += inc[i]                                             # alpha
+                    for j in range(3):
+                        D[2, i, j] += D[0, i, j] * dt - 0.5 * d_inc_g[i, j] * dt
+                        D[3, i, j] += D[1, i, j] * dt - 0.5 * C_mid[i, j] * dt * dt
+                        D[0, i, j] -= d_inc_g[i, j]
+                        D[1, i, j] -= C_mid[i, j] * dt
+                        J[i, j] = nJ[i, j]
+                        dC[i, j] = nC[i, j]
                 break
-            _store_integrals(s, run, inc, dt, tau_mid, out_alpha, out_beta, out_gamma)
-            _store_jacobians(s, D, d_inc_g, C_mid, nJ, nC, dt, out_da_g, out_da_a, out_db_g, out_db_a, out_J, out_C)
-            _store_lever(s, nC, nJ, lever, W, Jr, out_lam, out_dl_g)
+            for i in range(3):
+                out_beta[s, i] = run[3 + i] + run[i] * dt + 0.5 * inc[i] * dt
+                out_gamma[s, i] = run[9 + i] + run[6 + i] * dt + 0.5 * tau_mid * inc[i] * dt
+                out_alpha[s, i] = run[i] + inc[i]
+                for j in range(3):
+                    out_db_g[s, i, j] = D[2, i, j] + D[0, i, j] * dt - 0.5 * d_inc_g[i, j] * dt
+                    out_db_a[s, i, j] = D[3, i, j] + D[1, i, j] * dt - 0.5 * C_mid[i, j] * dt * dt
+                    out_da_g[s, i, j] = D[0, i, j] - d_inc_g[i, j]
+                    out_da_a[s, i, j] = D[1, i, j] - C_mid[i, j] * dt
+                    out_J[s, i, j] = nJ[i, j]
+                    out_C[s, i, j] = nC[i, j]
+            lever_arm_into(nC, lever, out_lam[s])
+            # dλ/db_g = -ΔC [l x] J
+            skew_into(lever, W)
+            _matmul3(W, nJ, Jr)
+            _matmul3(nC, Jr, out_dl_g[s])
+            for i in range(3):
+                for j in range(3):
+                    out_dl_g[s, i, j] = -out_dl_g[s, i, j]
             s += 1
     return out_C, out_alpha, out_beta, out_gamma, out_lam, out_J, out_da_g, out_da_a, out_db_g, out_db_a, out_dl_g
